@@ -1,0 +1,615 @@
+"""Calibrated pinhole cameras with OpenCV lens distortion, and rigs of them.
+
+Conventions (see ``docs/`` and the paper's Section "Notation"): a camera is
+``P = K R [I | -C]``, so a world point X has camera coordinates ``x_cam = R (X - C)``. Pixel
+coordinates follow OpenCV: the origin is the centre of the top-left pixel, x right, y down, and the
+image covers ``[-0.5, w - 0.5) x [-0.5, h - 0.5)``. Distortion is OpenCV's rational model
+``(k1, k2, p1, p2, k3, k4, k5, k6)``; shorter vectors (4 or 5 coefficients) are zero-padded.
+
+All projection routines are vectorised over points and, in :class:`CameraRig`, over cameras.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ValidationError, check_array
+
+__all__ = [
+    "Camera",
+    "CameraRig",
+    "Projection",
+    "distort_normalized",
+    "undistort_normalized",
+    "rotation_from_rodrigues",
+    "rodrigues_from_rotation",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Number of distortion coefficients stored (OpenCV's rational model).
+N_DIST = 8
+_ALLOWED_DIST_LENGTHS = (0, 4, 5, 8)
+#: Tolerance on ``R^T R = I`` and ``det R = 1`` when validating rotations.
+ROTATION_TOL = 1e-5
+
+
+def _pad_dist(name: str, dist: object) -> np.ndarray:
+    d = np.asarray(dist if dist is not None else [], dtype=float).ravel()
+    if d.size not in _ALLOWED_DIST_LENGTHS:
+        raise ValidationError(
+            f"{name}: distortion must have 0, 4, 5 or 8 coefficients "
+            f"(k1 k2 p1 p2 [k3 [k4 k5 k6]]), got {d.size}"
+        )
+    if not np.all(np.isfinite(d)):
+        raise ValidationError(f"{name}: distortion contains NaN or infinite values")
+    out = np.zeros(N_DIST)
+    out[: d.size] = d
+    return out
+
+
+def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Apply OpenCV lens distortion to normalised image coordinates.
+
+    Parameters
+    ----------
+    xy : (..., N, 2) float ndarray
+        Undistorted normalised coordinates ``(X/Z, Y/Z)``.
+    dist : (..., 8) float ndarray
+        ``(k1, k2, p1, p2, k3, k4, k5, k6)``, broadcast against the leading axes of ``xy``
+        (one row per camera for ``xy`` of shape (C, N, 2)).
+
+    Returns
+    -------
+    (..., N, 2) float ndarray
+        Distorted normalised coordinates.
+    """
+    d = np.asarray(dist, dtype=float)[..., None, :]  # (..., 1, 8)
+    k1, k2, p1, p2, k3, k4, k5, k6 = (d[..., i] for i in range(N_DIST))
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([xd, yd], axis=-1)
+
+
+def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray, iterations: int = 30) -> np.ndarray:
+    """Invert :func:`distort_normalized` by fixed-point iteration refined with Newton steps.
+
+    Parameters
+    ----------
+    xy_d : (..., N, 2) float ndarray
+        Distorted normalised coordinates.
+    dist : (..., 8) float ndarray
+        Distortion coefficients, broadcast as in :func:`distort_normalized`.
+    iterations : int
+        Fixed-point iterations before the Newton refinement.
+
+    Returns
+    -------
+    (..., N, 2) float ndarray
+        Undistorted normalised coordinates; round trips to ``xy_d`` to about 1e-10 inside the
+        lens's monotonic range.
+    """
+    xy_d = np.asarray(xy_d, dtype=float)
+    d = np.asarray(dist, dtype=float)
+    if not np.any(d):
+        return xy_d.copy()
+    xy = xy_d.copy()
+    dd = d[..., None, :]
+    k1, k2, p1, p2, k3, k4, k5, k6 = (dd[..., i] for i in range(N_DIST))
+    for _ in range(iterations):  # OpenCV's fixed-point scheme
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        icdist = (1 + r2 * (k4 + r2 * (k5 + r2 * k6))) / (1 + r2 * (k1 + r2 * (k2 + r2 * k3)))
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        xy = np.stack([(xy_d[..., 0] - dx) * icdist, (xy_d[..., 1] - dy) * icdist], axis=-1)
+    h = 1e-7
+    for _ in range(3):  # Newton with a finite-difference Jacobian, vectorised 2x2 solves
+        f = distort_normalized(xy, d) - xy_d  # (..., N, 2)
+        jx = (distort_normalized(xy + [h, 0.0], d) - xy_d - f) / h
+        jy = (distort_normalized(xy + [0.0, h], d) - xy_d - f) / h
+        a, b, c, e = jx[..., 0], jy[..., 0], jx[..., 1], jy[..., 1]
+        det = a * e - b * c
+        ok = np.abs(det) > 1e-12
+        det = np.where(ok, det, 1.0)
+        step_x = (e * f[..., 0] - b * f[..., 1]) / det
+        step_y = (-c * f[..., 0] + a * f[..., 1]) / det
+        xy = xy - np.where(ok[..., None], np.stack([step_x, step_y], axis=-1), 0.0)
+    return xy
+
+
+def rotation_from_rodrigues(rvec: object) -> np.ndarray:
+    """Rotation matrix from a Rodrigues (axis-angle) vector.
+
+    Parameters
+    ----------
+    rvec : (3,) array-like
+
+    Returns
+    -------
+    (3, 3) float ndarray
+    """
+    r = check_array("rvec", rvec, (3,), finite=True)
+    theta = float(np.linalg.norm(r))
+    if theta < 1e-12:
+        return np.eye(3)
+    k = r / theta
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * (kx @ kx)
+
+
+def rodrigues_from_rotation(R: object) -> np.ndarray:
+    """Rodrigues vector of a rotation matrix (inverse of :func:`rotation_from_rodrigues`).
+
+    Parameters
+    ----------
+    R : (3, 3) array-like
+        A rotation matrix.
+
+    Returns
+    -------
+    (3,) float ndarray
+    """
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(check_array("R", R, (3, 3), finite=True)).as_rotvec()
+
+
+@dataclass(frozen=True)
+class Projection:
+    """Points projected into several cameras.
+
+    Attributes
+    ----------
+    pixels : (C, N, 2) float ndarray
+        Distorted pixel coordinates (NaN behind the camera).
+    depth : (C, N) float ndarray
+        Depth along each camera's optical axis (z of ``R (X - C)``), in metres.
+    in_image : (C, N) bool ndarray
+        In front of the camera, inside the lens's valid field of view, and inside the image.
+    """
+
+    pixels: np.ndarray
+    depth: np.ndarray
+    in_image: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """One calibrated camera, ``P = K R [I | -C]``.
+
+    Parameters
+    ----------
+    name : str
+        Unique name within its rig (used for folder and file names).
+    K : (3, 3) float ndarray
+        Intrinsics; positive focal lengths, ``K[2] == [0, 0, 1]``.
+    R : (3, 3) float ndarray
+        World-to-camera rotation (proper, orthonormal).
+    C : (3,) float ndarray
+        Camera centre in world coordinates (metres).
+    size : (int, int)
+        Image ``(width, height)`` in pixels.
+    dist : (8,) float ndarray
+        OpenCV distortion ``(k1, k2, p1, p2, k3, k4, k5, k6)``; 0, 4, 5 or 8 values accepted.
+
+    Raises
+    ------
+    ValidationError
+        On wrong shapes, a non-rotation ``R``, a non-positive focal length or image size.
+    """
+
+    name: str
+    K: np.ndarray
+    R: np.ndarray
+    C: np.ndarray
+    size: tuple[int, int]
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(N_DIST))
+
+    def __post_init__(self) -> None:
+        name = str(self.name)
+        if not name or any(ch in name for ch in "/\\\0"):
+            raise ValidationError(f"camera name {name!r} must be non-empty without slashes")
+        where = f"camera {name!r}"
+        K = check_array(f"{where} K", self.K, (3, 3), finite=True)
+        R = check_array(f"{where} R", self.R, (3, 3), finite=True)
+        C = check_array(f"{where} C", self.C, (3,), finite=True)
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise ValidationError(
+                f"{where}: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}"
+            )
+        if not np.allclose(K[2], [0, 0, 1]) or K[1, 0] != 0:
+            raise ValidationError(f"{where}: K must be upper triangular with K[2] = [0, 0, 1]")
+        if not np.allclose(R.T @ R, np.eye(3), atol=ROTATION_TOL) or np.linalg.det(R) < 0:
+            raise ValidationError(
+                f"{where}: R is not a rotation matrix (R^T R != I or det R = {np.linalg.det(R):.4f})"
+            )
+        try:
+            w, h = (int(s) for s in self.size)
+        except (TypeError, ValueError):
+            raise ValidationError(
+                f"{where}: size must be (width, height), got {self.size!r}"
+            ) from None
+        if w <= 0 or h <= 0:
+            raise ValidationError(f"{where}: image size must be positive, got {w}x{h}")
+        # Re-orthonormalise R so that small calibration-file rounding does not accumulate.
+        u, _, vt = np.linalg.svd(R)
+        for attr, val in (
+            ("name", name),
+            ("K", K),
+            ("R", u @ vt),
+            ("C", C),
+            ("size", (w, h)),
+            ("dist", _pad_dist(f"{where} dist", self.dist)),
+        ):
+            object.__setattr__(self, attr, val)
+            if isinstance(val, np.ndarray):
+                val.flags.writeable = False
+
+    # -- alternative constructors ------------------------------------------------------------
+    @classmethod
+    def from_extrinsics(
+        cls,
+        name: str,
+        K: object,
+        R: object,
+        t: object,
+        size: tuple[int, int],
+        dist: object = None,
+    ) -> Camera:
+        """Build from OpenCV-style extrinsics ``x_cam = R X + t`` (so ``C = -R^T t``)."""
+        R = check_array(f"camera {name!r} R", R, (3, 3), finite=True)
+        t = check_array(f"camera {name!r} t", t, (3,), finite=True)
+        return cls(name, np.asarray(K, float), R, -R.T @ t, size, _pad_dist(name, dist))
+
+    @classmethod
+    def look_at(
+        cls,
+        name: str,
+        center: object,
+        target: object,
+        size: tuple[int, int],
+        focal: float,
+        up: object = (0.0, 0.0, 1.0),
+        dist: object = None,
+    ) -> Camera:
+        """A camera at ``center`` looking at ``target`` with world ``up`` pointing up in the image.
+
+        Parameters
+        ----------
+        name : str
+        center, target : (3,) array-like
+        size : (int, int)
+            ``(width, height)``; the principal point is the image centre.
+        focal : float
+            Focal length in pixels.
+        up : (3,) array-like
+            World up direction (default +z).
+        dist : array-like, optional
+        """
+        c = check_array("center", center, (3,), finite=True)
+        z = check_array("target", target, (3,), finite=True) - c
+        if np.linalg.norm(z) == 0:
+            raise ValidationError("look_at: center and target coincide")
+        z /= np.linalg.norm(z)
+        x = np.cross(z, np.asarray(up, float))
+        if np.linalg.norm(x) < 1e-9:
+            x = np.cross(z, [0.0, 1.0, 0.0])
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        w, h = size
+        K = np.array([[focal, 0, (w - 1) / 2], [0, focal, (h - 1) / 2], [0, 0, 1.0]])
+        return cls(name, K, np.stack([x, y, z]), c, (w, h), _pad_dist(name, dist))
+
+    # -- derived quantities ------------------------------------------------------------------
+    @property
+    def t(self) -> np.ndarray:
+        """(3,) translation of the OpenCV form ``x_cam = R X + t``."""
+        return -self.R @ self.C
+
+    @property
+    def P(self) -> np.ndarray:
+        """(3, 4) projection matrix ``K R [I | -C]`` (ignores distortion)."""
+        return self.K @ np.hstack([self.R, self.t[:, None]])
+
+    @property
+    def width(self) -> int:
+        return self.size[0]
+
+    @property
+    def height(self) -> int:
+        return self.size[1]
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.dist))
+
+    @property
+    def viewing_direction(self) -> np.ndarray:
+        """(3,) unit optical axis in world coordinates."""
+        return self.R[2].copy()
+
+    def with_name(self, name: str) -> Camera:
+        """A copy renamed."""
+        return Camera(name, self.K, self.R, self.C, self.size, self.dist)
+
+    def project(self, points: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Project world points into this camera.
+
+        Parameters
+        ----------
+        points : (N, 3) array-like
+
+        Returns
+        -------
+        pixels : (N, 2) float ndarray
+        depth : (N,) float ndarray
+        in_image : (N,) bool ndarray
+        """
+        proj = CameraRig([self]).project(points)
+        return proj.pixels[0], proj.depth[0], proj.in_image[0]
+
+    def undistort_pixels(self, pixels: object) -> np.ndarray:
+        """Remove lens distortion from pixel coordinates.
+
+        Parameters
+        ----------
+        pixels : (N, 2) array-like
+            Distorted pixels.
+
+        Returns
+        -------
+        (N, 2) float ndarray
+            The pixels an ideal (distortion-free) camera with the same K would see.
+        """
+        return CameraRig([self]).undistort_pixels(check_array("pixels", pixels, (None, 2))[None])[0]
+
+    def rays(self, pixels: object) -> tuple[np.ndarray, np.ndarray]:
+        """Back-project pixels into world rays.
+
+        Parameters
+        ----------
+        pixels : (N, 2) array-like
+            Distorted pixel coordinates.
+
+        Returns
+        -------
+        origins : (N, 3) float ndarray
+            The camera centre, repeated.
+        directions : (N, 3) float ndarray
+            Unit directions in world coordinates.
+        """
+        o, d = CameraRig([self]).rays(check_array("pixels", pixels, (None, 2))[None])
+        return o[0], d[0]
+
+    def __repr__(self) -> str:
+        fx, fy = self.K[0, 0], self.K[1, 1]
+        return (
+            f"Camera({self.name!r}, {self.width}x{self.height}, f=({fx:.1f}, {fy:.1f}), "
+            f"C={np.round(self.C, 3).tolist()})"
+        )
+
+
+class CameraRig(Sequence[Camera]):
+    """An ordered set of cameras with unique names, and vectorised operations over all of them.
+
+    Parameters
+    ----------
+    cameras : iterable of Camera
+
+    Raises
+    ------
+    ValidationError
+        If the rig is empty or names repeat.
+    """
+
+    def __init__(self, cameras: Iterable[Camera]) -> None:
+        cams = list(cameras)
+        if not cams:
+            raise ValidationError("a camera rig needs at least one camera")
+        for c in cams:
+            if not isinstance(c, Camera):
+                raise ValidationError(f"CameraRig expects Camera objects, got {type(c).__name__}")
+        names = [c.name for c in cams]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValidationError(f"duplicate camera names in rig: {', '.join(dup)}")
+        self._cams = cams
+        self.K = np.stack([c.K for c in cams])  # (C, 3, 3)
+        self.R = np.stack([c.R for c in cams])  # (C, 3, 3)
+        self.C = np.stack([c.C for c in cams])  # (C, 3)
+        self.dist = np.stack([c.dist for c in cams])  # (C, 8)
+        self.sizes = np.array([c.size for c in cams], dtype=np.int64)  # (C, 2)
+        self._max_r2 = self._valid_radius2()
+        for a in (self.K, self.R, self.C, self.dist, self.sizes, self._max_r2):
+            a.flags.writeable = False
+
+    # -- sequence protocol -------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self._cams)
+
+    def __getitem__(self, key):  # type: ignore[override]
+        if isinstance(key, str):
+            return self._cams[self.index(key)]
+        if isinstance(key, slice):
+            return CameraRig(self._cams[key])
+        return self._cams[key]
+
+    def __iter__(self) -> Iterator[Camera]:
+        return iter(self._cams)
+
+    def __repr__(self) -> str:
+        return f"CameraRig({len(self)} cameras: {', '.join(self.names[:6])}{'...' if len(self) > 6 else ''})"
+
+    @property
+    def names(self) -> list[str]:
+        """Camera names, in order."""
+        return [c.name for c in self._cams]
+
+    def index(self, name: str) -> int:  # type: ignore[override]
+        """Index of the camera called ``name``."""
+        for i, c in enumerate(self._cams):
+            if c.name == name:
+                return i
+        raise ValidationError(f"no camera named {name!r}; the rig has {', '.join(self.names)}")
+
+    def subset(self, cameras: Iterable[int | str]) -> CameraRig:
+        """A rig made of some cameras, by index or name."""
+        return CameraRig([self[c] for c in cameras])
+
+    @property
+    def P(self) -> np.ndarray:
+        """(C, 3, 4) projection matrices ``K R [I | -C]``."""
+        t = -np.einsum("cij,cj->ci", self.R, self.C)
+        return self.K @ np.concatenate([self.R, t[:, :, None]], axis=2)
+
+    # -- geometry ----------------------------------------------------------------------------
+    def _valid_radius2(self) -> np.ndarray:
+        """(C,) squared normalised radius beyond which a point cannot be in the image.
+
+        Polynomial distortion models fold back outside the calibrated field of view, so a point
+        far outside it can land inside the image. We bound the undistorted radius by that of the
+        image corners, with a 10 % margin.
+        """
+        out = np.empty(len(self))
+        for i, c in enumerate(self._cams):
+            w, h = c.size
+            corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
+            edges = np.array(
+                [
+                    [(w - 1) / 2, -0.5],
+                    [(w - 1) / 2, h - 0.5],
+                    [-0.5, (h - 1) / 2],
+                    [w - 0.5, (h - 1) / 2],
+                ]
+            )
+            pix = np.concatenate([corners, edges])
+            xy_d = (pix - c.K[:2, 2]) / np.diag(c.K)[:2]
+            xy_d[:, 0] -= c.K[0, 1] * xy_d[:, 1] / c.K[0, 0]
+            xy = undistort_normalized(xy_d, c.dist)
+            r2 = np.max(np.sum(xy**2, axis=1))
+            # Where undistortion failed to converge, fall back to the distorted radius.
+            back = distort_normalized(xy, c.dist)
+            if not np.allclose(back, xy_d, atol=1e-6) or not np.isfinite(r2):
+                r2 = np.max(np.sum(xy_d**2, axis=1))
+            out[i] = r2 * 1.1**2
+        return out
+
+    def project(self, points: object) -> Projection:
+        """Project world points into every camera at once.
+
+        Parameters
+        ----------
+        points : (N, 3) array-like
+            World points in metres. NaN rows give NaN pixels and ``in_image`` False.
+
+        Returns
+        -------
+        Projection
+            ``pixels`` (C, N, 2), ``depth`` (C, N) and ``in_image`` (C, N).
+        """
+        X = check_array("points", points, (None, 3))
+        cam = np.einsum("cij,cnj->cni", self.R, X[None] - self.C[:, None])  # (C, N, 3)
+        depth = cam[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = cam[..., :2] / np.where(depth > 0, depth, np.nan)[..., None]  # (C, N, 2)
+        r2 = np.sum(xy**2, axis=-1)  # (C, N)
+        xy_d = distort_normalized(xy, self.dist)  # (C, N, 2)
+        K = self.K
+        u = K[:, None, 0, 0] * xy_d[..., 0] + K[:, None, 0, 1] * xy_d[..., 1] + K[:, None, 0, 2]
+        v = K[:, None, 1, 1] * xy_d[..., 1] + K[:, None, 1, 2]
+        pixels = np.stack([u, v], axis=-1)  # (C, N, 2)
+        w = self.sizes[:, None, 0]
+        h = self.sizes[:, None, 1]
+        with np.errstate(invalid="ignore"):
+            in_image = (
+                (depth > 0)
+                & (r2 <= self._max_r2[:, None])
+                & (u >= -0.5)
+                & (u < w - 0.5)
+                & (v >= -0.5)
+                & (v < h - 0.5)
+            )
+        return Projection(pixels, depth, in_image)
+
+    def undistort_pixels(self, pixels: object) -> np.ndarray:
+        """Remove lens distortion, camera by camera.
+
+        Parameters
+        ----------
+        pixels : (C, N, 2) array-like
+            Distorted pixels, one row of points per camera.
+
+        Returns
+        -------
+        (C, N, 2) float ndarray
+            Ideal pixel coordinates under each camera's K without distortion.
+        """
+        xy = self.normalized(pixels)
+        K = self.K
+        u = K[:, None, 0, 0] * xy[..., 0] + K[:, None, 0, 1] * xy[..., 1] + K[:, None, 0, 2]
+        v = K[:, None, 1, 1] * xy[..., 1] + K[:, None, 1, 2]
+        return np.stack([u, v], axis=-1)
+
+    def normalized(self, pixels: object) -> np.ndarray:
+        """Undistorted normalised coordinates ``(X/Z, Y/Z)`` of distorted pixels.
+
+        Parameters
+        ----------
+        pixels : (C, N, 2) array-like
+
+        Returns
+        -------
+        (C, N, 2) float ndarray
+        """
+        pix = check_array("pixels", pixels, (len(self), None, 2))
+        K = self.K
+        y = (pix[..., 1] - K[:, None, 1, 2]) / K[:, None, 1, 1]
+        x = (pix[..., 0] - K[:, None, 0, 2] - K[:, None, 0, 1] * y) / K[:, None, 0, 0]
+        return undistort_normalized(np.stack([x, y], axis=-1), self.dist)
+
+    def rays(self, pixels: object) -> tuple[np.ndarray, np.ndarray]:
+        """Back-project pixels into world rays, camera by camera.
+
+        Parameters
+        ----------
+        pixels : (C, N, 2) array-like
+            Distorted pixels.
+
+        Returns
+        -------
+        origins : (C, N, 3) float ndarray
+        directions : (C, N, 3) float ndarray
+            Unit vectors in world coordinates.
+        """
+        xy = self.normalized(pixels)
+        d_cam = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)  # (C, N, 3)
+        d = np.einsum("cji,cnj->cni", self.R, d_cam)  # R^T d_cam
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        o = np.broadcast_to(self.C[:, None, :], d.shape).copy()
+        return o, d
+
+    def reprojection_errors(self, points: object, observations: object) -> np.ndarray:
+        """Pixel distance between projected points and observations.
+
+        Parameters
+        ----------
+        points : (N, 3) array-like
+        observations : (C, N, 2) array-like
+            NaN where a camera has no observation.
+
+        Returns
+        -------
+        (C, N) float ndarray
+            NaN where there is no observation or the point is behind the camera.
+        """
+        obs = check_array("observations", observations, (len(self), None, 2))
+        proj = self.project(points)
+        return np.linalg.norm(proj.pixels - obs, axis=-1)

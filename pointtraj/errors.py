@@ -1,0 +1,101 @@
+"""Exceptions and the one input-validation helper used at public boundaries.
+
+Every error a user can cause is a :class:`PointtrajError`. Those about the shape or value of an
+argument are also ``ValueError`` (:class:`ValidationError`); those about a file name the file and
+the field (:class:`FileFormatError`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from os import PathLike
+
+import numpy as np
+
+__all__ = [
+    "PointtrajError",
+    "ValidationError",
+    "FileFormatError",
+    "check_array",
+]
+
+
+class PointtrajError(Exception):
+    """Base class of every error pointtraj raises on purpose."""
+
+
+class ValidationError(PointtrajError, ValueError):
+    """An argument has the wrong shape, type or value."""
+
+
+class FileFormatError(PointtrajError, ValueError):
+    """A file is missing, unreadable, or has a bad field.
+
+    Parameters
+    ----------
+    path : path-like
+        The offending file.
+    message : str
+        What is wrong, ideally naming the field.
+    """
+
+    def __init__(self, path: str | PathLike, message: str) -> None:
+        self.path = str(path)
+        self.message = message
+        super().__init__(f"{self.path}: {message}")
+
+
+def check_array(
+    name: str,
+    value: object,
+    shape: Sequence[int | None],
+    *,
+    dtype: type | np.dtype | None = float,
+    finite: bool = False,
+) -> np.ndarray:
+    """Convert ``value`` to an array and check its shape.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, used in the error message.
+    value : array-like
+        The value to check.
+    shape : sequence of int or None
+        The expected shape; ``None`` matches any length along that axis.
+    dtype : numpy dtype or None
+        Convert to this dtype (``None`` keeps the input's dtype).
+    finite : bool
+        Also require every element to be finite.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``value`` as an array of ``dtype``.
+
+    Raises
+    ------
+    ValidationError
+        If the shape does not match, the conversion fails, or ``finite`` is violated.
+
+    Examples
+    --------
+    >>> check_array("points", [[0, 0, 1]], (None, 3)).shape
+    (1, 3)
+    >>> check_array("points", [0, 0, 1], (None, 3))
+    Traceback (most recent call last):
+    ...
+    pointtraj.errors.ValidationError: points: expected shape (N, 3), got (3,)
+    """
+    try:
+        arr = np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ValidationError(f"{name}: cannot convert to an array of {dtype}: {exc}") from None
+    expected = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+    if len(shape) == 1:
+        expected = expected[:-1] + ",)"
+    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+        raise ValidationError(f"{name}: expected shape {expected}, got {arr.shape}")
+    if finite and not np.all(np.isfinite(arr)):
+        raise ValidationError(f"{name}: contains NaN or infinite values")
+    return arr

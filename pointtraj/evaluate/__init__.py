@@ -1,0 +1,24 @@
+"""Evaluation: the paper's three studies, ground-truth metrics, and the report."""
+
+from __future__ import annotations
+
+from .metrics import (
+    LabelAccuracy,
+    agreement_rate,
+    disagreement_by_distance,
+    label_accuracy,
+    normalized_correlation,
+    temporal_consistency,
+)
+from .report import Section, write_report
+
+__all__ = [
+    "LabelAccuracy",
+    "Section",
+    "agreement_rate",
+    "disagreement_by_distance",
+    "label_accuracy",
+    "normalized_correlation",
+    "temporal_consistency",
+    "write_report",
+]

@@ -1,0 +1,236 @@
+"""Predictive validity on held-out cameras: the paper's cross-validation (Section 7, Figure 7).
+
+Label each trajectory from a subset of the cameras, project it into a held-out camera, and count
+how often its label agrees with the recognition there. It needs no ground truth, so it runs on
+real captures. We gather the per-camera samples of a random subset of trajectories in one
+streaming pass (:func:`collect_camera_samples`), after which every camera subset is a cheap
+pooling over columns (:func:`predictive_validity`).
+
+Labels here are the argmax of the pooled-then-time-averaged L3D (the 3D semantic map), so the
+study compares poolings directly, as the paper's figure does.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ValidationError
+from ..trajectories import Trajectories, dequantize_visibility
+
+__all__ = ["CameraSamples", "collect_camera_samples", "predictive_validity", "camera_counts"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CameraSamples:
+    """Per-camera confidences of a subset of point-frames.
+
+    Attributes
+    ----------
+    track : (S,) int64 ndarray
+        Trajectory of each sample (index into the full store).
+    frame : (S,) int64 ndarray
+    L : (S, C, K) float16 ndarray
+        Confidences sampled at the projection in each camera (0 outside the image).
+    V : (S, C) float32 ndarray
+        Visibility from the trajectory store.
+    in_image : (S, C) bool ndarray
+    observed : (S, C) int16 ndarray
+        The recogniser's label at the projection: argmax of L where its maximum reaches
+        ``min_confidence``, else -1 (nothing recognised there).
+    camera_names : list of str
+    """
+
+    track: np.ndarray
+    frame: np.ndarray
+    L: np.ndarray
+    V: np.ndarray
+    in_image: np.ndarray
+    observed: np.ndarray
+    camera_names: list[str]
+
+
+def collect_camera_samples(
+    trajectories: Trajectories,
+    rig,
+    recognize: Callable[[int, int], np.ndarray],
+    num_classes: int,
+    max_tracks: int = 3000,
+    frame_stride: int = 1,
+    min_confidence: float = 0.5,
+    seed: int = 0,
+    progress: Callable[[int], None] | None = None,
+) -> CameraSamples:
+    """Sample every camera's confidences at a random subset of trajectories, frame by frame.
+
+    Parameters
+    ----------
+    trajectories : Trajectories
+    rig : CameraRig
+        Cameras in the store's order.
+    recognize : callable ``(camera_index, frame) -> (h, w, K) L2D``
+        Runs the recogniser on one image (the map is sampled, then dropped).
+    num_classes : int
+        K.
+    max_tracks : int
+        Trajectories sampled (all when there are fewer).
+    frame_stride : int
+        Use every n-th frame.
+    min_confidence : float
+        Below this maximum confidence a projection counts as "nothing recognised".
+    seed : int
+    progress : callable, optional
+        Called with the number of frames done after each frame.
+
+    Returns
+    -------
+    CameraSamples
+    """
+    from ..semantics.sampling import sample_confidences
+
+    if len(rig) != trajectories.num_cameras:
+        raise ValidationError(
+            f"rig has {len(rig)} cameras, the trajectories {trajectories.num_cameras}"
+        )
+    M = trajectories.num_trajectories
+    rng = np.random.default_rng(seed)
+    chosen = np.zeros(M, bool)
+    chosen[rng.choice(M, size=min(M, max_tracks), replace=False)] = True
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("track", "frame", "L", "V", "inimg")}
+    C = len(rig)
+    for t in range(0, trajectories.num_frames, frame_stride):
+        rows = trajectories.frame_rows(t)
+        rows = rows[chosen[trajectories.row_track[rows]]]
+        if len(rows):
+            proj = rig.project(trajectories.xyz[rows])
+            L = np.zeros((len(rows), C, num_classes), np.float16)
+            for c in range(C):
+                if proj.in_image[c].any():
+                    L2D = recognize(c, t)
+                    L[:, c] = sample_confidences(L2D, proj.pixels[c], rig[c].size)
+            parts["track"].append(trajectories.row_track[rows])
+            parts["frame"].append(np.full(len(rows), t, np.int64))
+            parts["L"].append(L)
+            parts["V"].append(dequantize_visibility(trajectories.visibility[rows]))
+            parts["inimg"].append(proj.in_image.T)
+        if progress is not None:
+            progress(1)
+    if not parts["track"]:
+        raise ValidationError("no trajectory point-frames to sample")
+    L = np.concatenate(parts["L"])
+    Lf = L.astype(np.float32)
+    observed = np.where(Lf.max(axis=2) >= min_confidence, Lf.argmax(axis=2), -1).astype(np.int16)
+    return CameraSamples(
+        track=np.concatenate(parts["track"]),
+        frame=np.concatenate(parts["frame"]),
+        L=L,
+        V=np.concatenate(parts["V"]),
+        in_image=np.concatenate(parts["inimg"]),
+        observed=observed,
+        camera_names=list(rig.names),
+    )
+
+
+def camera_counts(num_cameras: int) -> list[int]:
+    """The paper's x-axis: 1, 2, 5, 10, 20, ... up to all but the held-out camera.
+
+    Examples
+    --------
+    >>> camera_counts(4), camera_counts(69)
+    ([1, 2, 3], [1, 2, 5, 10, 20, 30, 40, 50, 60, 68])
+    """
+    top = num_cameras - 1
+    base = [1, 2, 5, 10, 20] + list(range(30, top, 10))
+    return sorted({n for n in base if n < top} | {top}) if top >= 1 else []
+
+
+def _track_labels(track: np.ndarray, pooled: np.ndarray) -> np.ndarray:
+    """Argmax of the time-averaged pooled confidences per trajectory (NaN rows skipped)."""
+    ok = np.all(np.isfinite(pooled), axis=1)
+    uniq, inv = np.unique(track[ok], return_inverse=True)
+    K = pooled.shape[1]
+    sums = np.zeros((len(uniq), K))
+    np.add.at(sums, inv, pooled[ok])
+    out = np.full(track.max() + 1 if len(track) else 0, -1, np.int64)
+    out[uniq] = sums.argmax(axis=1)
+    return out
+
+
+def predictive_validity(
+    samples: CameraSamples,
+    eps_e: float,
+    poolings: Sequence[str] = ("view", "average"),
+    counts: Sequence[int] | None = None,
+    held_out: Sequence[int] | None = None,
+    draws: int = 3,
+    seed: int = 0,
+) -> dict[str, dict[int, float]]:
+    """Agreement of labels from n cameras with the recognition in a held-out camera.
+
+    Parameters
+    ----------
+    samples : CameraSamples
+    eps_e : float
+        Visibility threshold: the held-out camera counts a sample only when ``V > eps_e`` there;
+        pooling uses it too.
+    poolings : sequence of str
+        Pooling methods (see :func:`pointtraj.semantics.pooling.pool_views`).
+    counts : sequence of int, optional
+        Numbers of labelling cameras (default :func:`camera_counts`).
+    held_out : sequence of int, optional
+        Cameras held out in turn (default: all, at most 8 spread evenly).
+    draws : int
+        Random camera subsets per (held-out camera, count).
+    seed : int
+
+    Returns
+    -------
+    dict
+        ``{pooling: {n: mean agreement}}``, averaged over held-out cameras and draws
+        (weighted by the number of evaluated samples).
+    """
+    from ..semantics.pooling import pool_views
+
+    C = len(samples.camera_names)
+    if C < 2:
+        raise ValidationError("predictive validity needs at least 2 cameras")
+    counts = list(counts) if counts is not None else camera_counts(C)
+    if held_out is None:
+        held_out = np.unique(np.linspace(0, C - 1, min(C, 8)).round().astype(int)).tolist()
+    rng = np.random.default_rng(seed)
+    L = samples.L.astype(np.float32)
+    out: dict[str, dict[int, float]] = {p: {} for p in poolings}
+    for n in counts:
+        hits = dict.fromkeys(poolings, 0.0)
+        total = dict.fromkeys(poolings, 0.0)
+        for h in held_out:
+            evaluate = (samples.V[:, h] > eps_e) & (samples.observed[:, h] >= 0)
+            if not evaluate.any():
+                continue
+            others = np.array([c for c in range(C) if c != h])
+            if n > len(others):
+                continue
+            for _ in range(draws if n < len(others) else 1):
+                subset = np.sort(rng.choice(others, size=n, replace=False))
+                for p in poolings:
+                    pooled = pool_views(
+                        L[:, subset],
+                        samples.V[:, subset],
+                        eps_e,
+                        p,
+                        in_image=samples.in_image[:, subset],
+                        camera_axis=1,
+                    )
+                    labels = _track_labels(samples.track, pooled)
+                    pred = labels[samples.track[evaluate]]
+                    obs = samples.observed[evaluate, h]
+                    hits[p] += float(np.sum(pred == obs))
+                    total[p] += float(len(obs))
+        for p in poolings:
+            out[p][n] = hits[p] / total[p] if total[p] else float("nan")
+    return out

@@ -1,0 +1,152 @@
+"""``labels.npz`` and ``labels.csv``: the label of every trajectory (``data_specs/labels.md``)."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import FileFormatError, ValidationError
+
+__all__ = ["TrajectoryLabels", "save_labels", "load_labels", "FORMAT_VERSION"]
+
+FORMAT_VERSION = 1
+
+
+@dataclass(eq=False)
+class TrajectoryLabels:
+    """The labelling stage's result for M trajectories over K classes.
+
+    Attributes
+    ----------
+    labels : (M,) int64 ndarray
+        Class index per trajectory (order of ``class_names``).
+    confidence : (M,) float32 ndarray
+        Normalised L3D of the assigned label (``L3D[l] / sum L3D``; 0 without semantics).
+    argmax : (M,) int64 ndarray
+        Argmax of L3D, the initial labelling.
+    class_names : tuple of K str
+    energy : (S + 1,) float64 ndarray
+        Energy at the start and after each sweep (non-increasing).
+    pooling : str
+        The L3D pooling labelled.
+    params : dict
+        The labelling parameters used.
+    """
+
+    labels: np.ndarray
+    confidence: np.ndarray
+    argmax: np.ndarray
+    class_names: tuple[str, ...]
+    energy: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    pooling: str = "view"
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.class_names = tuple(str(n) for n in self.class_names)
+        self.labels = np.asarray(self.labels, np.int64)
+        M = self.labels.shape[0]
+        self.confidence = np.asarray(self.confidence, np.float32)
+        self.argmax = np.asarray(self.argmax, np.int64)
+        self.energy = np.asarray(self.energy, np.float64)
+        for name in ("labels", "confidence", "argmax"):
+            arr = getattr(self, name)
+            if arr.shape != (M,):
+                raise ValidationError(f"{name}: expected shape ({M},), got {arr.shape}")
+        K = len(self.class_names)
+        if M and (self.labels.min() < -1 or self.labels.max() >= K):
+            raise ValidationError(f"labels: must lie in [-1, {K}), the {K} classes")
+
+    def __len__(self) -> int:
+        return int(self.labels.shape[0])
+
+    def names(self) -> np.ndarray:
+        """(M,) str ndarray: the class name of each trajectory ("" where unlabelled)."""
+        table = np.array([*self.class_names, ""], dtype=str)
+        return table[np.where(self.labels >= 0, self.labels, len(self.class_names))]
+
+
+def save_labels(
+    labels: TrajectoryLabels,
+    path: str | os.PathLike,
+    first_frame: np.ndarray | None = None,
+    lengths: np.ndarray | None = None,
+) -> None:
+    """Write ``labels.npz`` and, beside it, ``labels.csv``, both atomically.
+
+    Parameters
+    ----------
+    labels : TrajectoryLabels
+    path : path-like
+        The ``.npz`` file; the CSV takes the same name with ``.csv``.
+    first_frame, lengths : (M,) int ndarray, optional
+        Per trajectory, for the CSV's ``first_frame`` and ``length`` columns (empty if absent).
+    """
+    from .atomic import save_npz_atomic, write_text_atomic
+
+    path = Path(path)
+    save_npz_atomic(
+        path,
+        format_version=np.int64(FORMAT_VERSION),
+        labels=labels.labels,
+        confidence=labels.confidence,
+        argmax=labels.argmax,
+        class_names=np.array(labels.class_names, dtype=str),
+        energy=labels.energy,
+        pooling=np.array(labels.pooling),
+        params=np.array(json.dumps(labels.params, sort_keys=True)),
+    )
+    M = len(labels)
+    ff = [""] * M if first_frame is None else np.asarray(first_frame).tolist()
+    ln = [""] * M if lengths is None else np.asarray(lengths).tolist()
+    lines = ["track_id,label,label_name,confidence,first_frame,length"]
+    lines += [
+        f"{m},{lab},{name},{c:.4f},{f},{n}"
+        for m, lab, name, c, f, n in zip(
+            range(M), labels.labels.tolist(), labels.names(), labels.confidence.tolist(), ff, ln
+        )
+    ]
+    write_text_atomic(path.with_suffix(".csv"), "\n".join(lines) + "\n")
+
+
+def load_labels(path: str | os.PathLike) -> TrajectoryLabels:
+    """Read ``labels.npz``.
+
+    Raises
+    ------
+    FileFormatError
+        Missing file, missing array, other format version or inconsistent shapes.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileFormatError(path, "no such file (run `pointtraj label` first)")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise FileFormatError(path, f"unreadable: {exc}") from None
+    for key in ("format_version", "labels", "class_names"):
+        if key not in arrays:
+            raise FileFormatError(path, f"missing array {key!r}")
+    if int(arrays["format_version"]) != FORMAT_VERSION:
+        raise FileFormatError(
+            path, f"format_version {int(arrays['format_version'])} (expected {FORMAT_VERSION})"
+        )
+    labels = arrays["labels"]
+    try:
+        params = json.loads(str(arrays["params"])) if "params" in arrays else {}
+        return TrajectoryLabels(
+            labels=labels,
+            confidence=arrays.get("confidence", np.zeros(len(labels), np.float32)),
+            argmax=arrays.get("argmax", labels),
+            class_names=tuple(str(n) for n in arrays["class_names"]),
+            energy=arrays.get("energy", np.zeros(0)),
+            pooling=str(arrays.get("pooling", "view")),
+            params=params,
+        )
+    except (ValidationError, json.JSONDecodeError) as exc:
+        raise FileFormatError(path, str(exc)) from None

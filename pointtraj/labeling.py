@@ -1,0 +1,482 @@
+"""Joint trajectory labelling by alpha-expansion on a general graph (the paper's Section 4.3).
+
+Minimises the paper's Equation (cost)
+
+    E(U) = Σ_i D[i, U(i)] + λ Σ_{(i,j) ∈ edges} A(i,j) [U(i) ≠ U(j)]
+
+with Potts pairwise terms weighted by the trajectory affinity. Each α-expansion move is one
+binary min-cut built on ``maxflow.Graph[float]`` with vectorised ``add_nodes`` / ``add_edges`` /
+``add_grid_tedges`` (Boykov-Veksler-Zabih move, written in the Kolmogorov-Zabih form: a pair with
+current labels (a, b), neither α, has move energies E00 = w[a ≠ b], E01 = E10 = w, E11 = 0, which
+is submodular because Potts is a metric).
+
+Speed (``method="restricted"``): a move for α only frees the trajectories for which α is
+plausible (``L3D[i, α] >= plausible_threshold`` or a neighbour holds α now); the others stay
+fixed and enter the cut as unary terms through their edges. After the first sweep a move is
+only rebuilt on the connected components of its free set that contain a trajectory whose label
+or neighbourhood changed since α was last tried (elsewhere the previous optimal move is still
+optimal). ``method="full"`` is the plain whole-graph expansion, for comparison.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from .errors import ValidationError, check_array
+
+__all__ = [
+    "LabelingConfig",
+    "LabelingResult",
+    "data_costs",
+    "labeling_energy",
+    "expand_alpha",
+    "alpha_expansion",
+    "plausible_labels",
+    "label_trajectories",
+]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LabelingConfig:
+    """Parameters of the labelling stage.
+
+    Attributes
+    ----------
+    smoothness : float
+        λ of the paper's Equation (cost), weight of the affinity (Potts) term.
+    data_cost : {"neglog", "paper"}
+        ``"paper"``: φ = 0 for the argmax label, ``L3D[argmax]`` otherwise. ``"neglog"``:
+        ``-log(L3D / ΣL3D + 1e-3)`` shifted to a zero row minimum, which tells the other labels
+        apart (the default: see ``benchmarks/study_affinity.py``).
+    method : {"restricted", "full"}
+        Restricted expansion moves (fast, see the module docstring) or plain whole-graph ones.
+    plausible_threshold : float
+        α is plausible for a trajectory whose normalised L3D for α is at least this.
+    max_sweeps : int
+        Upper bound on sweeps over the labels (it stops earlier when no move improves).
+    """
+
+    smoothness: float = 0.3
+    data_cost: Literal["neglog", "paper"] = "neglog"
+    method: Literal["restricted", "full"] = "restricted"
+    plausible_threshold: float = 0.05
+    max_sweeps: int = 10
+
+    def __post_init__(self) -> None:
+        if not self.smoothness >= 0:
+            raise ValidationError("LabelingConfig.smoothness (λ) must be >= 0")
+        if self.data_cost not in ("neglog", "paper"):
+            raise ValidationError(
+                f"LabelingConfig.data_cost must be 'neglog' or 'paper', got {self.data_cost!r}"
+            )
+        if self.method not in ("restricted", "full"):
+            raise ValidationError(
+                f"LabelingConfig.method must be 'restricted' or 'full', got {self.method!r}"
+            )
+        if self.max_sweeps < 1:
+            raise ValidationError("LabelingConfig.max_sweeps must be >= 1")
+
+
+@dataclass
+class LabelingResult:
+    """Output of :func:`alpha_expansion`.
+
+    Attributes
+    ----------
+    labels : (M,) int64 ndarray
+    energy : list of float
+        Energy after initialisation and after each sweep (non-increasing).
+    moves : int
+        Number of max-flow problems solved.
+    seconds : float
+        Wall time.
+    """
+
+    labels: np.ndarray
+    energy: list[float] = field(default_factory=list)
+    moves: int = 0
+    seconds: float = 0.0
+
+
+def data_costs(l3d: np.ndarray, kind: Literal["neglog", "paper"] = "neglog") -> np.ndarray:
+    """Data costs ``D[i, l]`` from the 3D semantic map.
+
+    Parameters
+    ----------
+    l3d : (M, K) float ndarray
+        L3D per trajectory (non-negative; rows need not sum to 1; NaN rows count as uniform).
+    kind : {"neglog", "paper"}
+        See :class:`LabelingConfig`.
+
+    Returns
+    -------
+    (M, K) float64 ndarray
+        Non-negative costs, 0 at each row's argmax.
+
+    Examples
+    --------
+    >>> data_costs(np.array([[0.7, 0.2, 0.1]]), "paper")
+    array([[0. , 0.7, 0.7]])
+    """
+    l3d = check_array("l3d", l3d, (None, None), dtype=np.float64)
+    if np.any(l3d < 0):
+        raise ValidationError("l3d: must be non-negative")
+    l3d = np.where(np.isfinite(l3d), l3d, 0.0)
+    M, K = l3d.shape
+    top = l3d.argmax(axis=1)
+    if kind == "paper":
+        D = np.repeat(l3d[np.arange(M), top][:, None], K, axis=1)
+        D[np.arange(M), top] = 0.0
+        return D
+    if kind == "neglog":
+        s = l3d.sum(axis=1, keepdims=True)
+        p = np.where(s > 0, l3d / np.where(s > 0, s, 1.0), 1.0 / K)
+        D = -np.log(p + 1e-3)
+        return D - D.min(axis=1, keepdims=True)
+    raise ValidationError(f"kind must be 'neglog' or 'paper', got {kind!r}")
+
+
+def _check_graph(
+    D: np.ndarray, row: np.ndarray, col: np.ndarray, weight: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    D = check_array("data_cost", D, (None, None), dtype=np.float64, finite=True)
+    row = check_array("row", row, (None,), dtype=np.int64)
+    col = check_array("col", col, (row.shape[0],), dtype=np.int64)
+    weight = check_array("weight", weight, (row.shape[0],), dtype=np.float64, finite=True)
+    M = D.shape[0]
+    if row.size and (min(row.min(), col.min()) < 0 or max(row.max(), col.max()) >= M):
+        raise ValidationError(f"row/col: edge endpoints must lie in [0, {M})")
+    if np.any(weight < 0):
+        raise ValidationError("weight: affinities must be non-negative")
+    return D, row, col, weight
+
+
+def labeling_energy(
+    labels: np.ndarray,
+    D: np.ndarray,
+    row: np.ndarray,
+    col: np.ndarray,
+    weight: np.ndarray,
+    smoothness: float = 0.3,
+) -> float:
+    """``Σ_i D[i, U(i)] + λ Σ_e w_e [U(row_e) ≠ U(col_e)]`` (paper Equation (cost)).
+
+    Parameters
+    ----------
+    labels : (M,) int ndarray
+    D : (M, K) float ndarray
+    row, col : (E,) int ndarray
+        Each undirected edge once.
+    weight : (E,) float ndarray
+    smoothness : float
+        λ.
+    """
+    labels = np.asarray(labels)
+    unary = D[np.arange(D.shape[0]), labels].sum()
+    return float(unary + smoothness * weight[labels[row] != labels[col]].sum())
+
+
+def expand_alpha(
+    labels: np.ndarray,
+    alpha: int,
+    free: np.ndarray,
+    D: np.ndarray,
+    row: np.ndarray,
+    col: np.ndarray,
+    lam_w: np.ndarray,
+    edges: np.ndarray | None = None,
+) -> np.ndarray:
+    """One α-expansion move restricted to the ``free`` trajectories (one min-cut).
+
+    Parameters
+    ----------
+    labels : (M,) int64 ndarray
+        Current labelling (not modified).
+    alpha : int
+    free : (M,) bool ndarray
+        Trajectories allowed to switch to α (those already α are ignored).
+    D : (M, K) float64 ndarray
+    row, col : (E,) int64 ndarray
+    lam_w : (E,) float64 ndarray
+        λ A(i, j) per edge.
+    edges : (E',) int ndarray, optional
+        Indices of the edges with an end in ``free`` (or any superset); default all.
+
+    Returns
+    -------
+    (M,) int64 ndarray
+        The labelling after the optimal move (equal to ``labels`` where nothing improves).
+    """
+    import maxflow
+
+    free = free & (labels != alpha)
+    nodes = np.flatnonzero(free)
+    n = nodes.size
+    out = labels.copy()
+    if n == 0:
+        return out
+    if edges is not None:
+        row, col, lam_w = row[edges], col[edges], lam_w[edges]
+    loc = np.full(labels.shape[0], -1, dtype=np.int64)
+    loc[nodes] = np.arange(n)
+    u1 = D[nodes, alpha].copy()  # cost if the node takes α (sink side)
+    u0 = D[nodes, labels[nodes]].copy()  # cost if it keeps its label (source side)
+    fr, fc = free[row], free[col]
+    lr, lc = labels[row], labels[col]
+    # both free: E00 = w[lr != lc], E01 = E10 = w, E11 = 0 (Kolmogorov-Zabih decomposition:
+    # E = E00 + (E10 - E00) x_r + (E11 - E10) x_c + (E01 + E10 - E00 - E11) (1 - x_r) x_c)
+    both = fr & fc
+    w = lam_w[both]
+    e00 = np.where(lr[both] == lc[both], 0.0, w)
+    a, b = loc[row[both]], loc[col[both]]
+    u1 += np.bincount(a, w - e00, minlength=n)
+    u1 -= np.bincount(b, w, minlength=n)
+    pair_cap = 2.0 * w - e00
+    # one end free, the other fixed with label m: E(x) = x w[α != m] + (1 - x) w[l != m]
+    for f_side, fl, ol, f_free, o_free in ((row, lr, lc, fr, fc), (col, lc, lr, fc, fr)):
+        one = f_free & ~o_free
+        if not np.any(one):
+            continue
+        w1 = lam_w[one]
+        k = loc[f_side[one]]
+        olo = ol[one]
+        u1 += np.bincount(k, np.where(olo != alpha, w1, 0.0), minlength=n)
+        u0 += np.bincount(k, np.where(olo != fl[one], w1, 0.0), minlength=n)
+    m = np.minimum(u0, u1)
+    g = maxflow.Graph[float](n, int(a.size))
+    g.add_nodes(n)
+    if a.size:
+        g.add_edges(a, b, pair_cap, np.zeros_like(pair_cap))
+    g.add_grid_tedges(np.arange(n), u1 - m, u0 - m)
+    g.maxflow()
+    to_alpha = g.get_grid_segments(np.arange(n))  # True = sink side = α
+    out[nodes[to_alpha]] = alpha
+    return out
+
+
+class _Adjacency:
+    """Node -> (neighbour, edge id) lists in CSR form, built once per graph."""
+
+    def __init__(self, M: int, row: np.ndarray, col: np.ndarray) -> None:
+        ends = np.concatenate([row, col])
+        order = np.argsort(ends, kind="stable")
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(ends, minlength=M))])
+        self.nbr = np.concatenate([col, row])[order]
+        self.eid = np.concatenate([np.arange(row.size), np.arange(row.size)])[order]
+        self.num_edges = int(row.size)
+
+    def gather(self, nodes: np.ndarray, data: np.ndarray) -> np.ndarray:
+        start = self.indptr[nodes]
+        cnt = self.indptr[nodes + 1] - start
+        idx = np.repeat(start - np.cumsum(cnt) + cnt, cnt) + np.arange(int(cnt.sum()))
+        return data[idx]
+
+    def neighbours_of(self, mask: np.ndarray) -> np.ndarray:
+        """(M,) bool: has an edge to a node in ``mask``."""
+        out = np.zeros(mask.shape[0], dtype=bool)
+        out[self.gather(np.flatnonzero(mask), self.nbr)] = True
+        return out
+
+    def edges_of(self, mask: np.ndarray) -> np.ndarray:
+        """Sorted unique ids of the edges with an end in ``mask``."""
+        mark = np.zeros(self.num_edges, dtype=bool)
+        mark[self.gather(np.flatnonzero(mask), self.eid)] = True
+        return np.flatnonzero(mark)
+
+
+def alpha_expansion(
+    D: np.ndarray,
+    row: np.ndarray,
+    col: np.ndarray,
+    weight: np.ndarray,
+    config: LabelingConfig | None = None,
+    *,
+    init: np.ndarray | None = None,
+    plausible: np.ndarray | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> LabelingResult:
+    """Minimise the paper's Equation (cost) by α-expansion on a general graph.
+
+    Parameters
+    ----------
+    D : (M, K) float ndarray
+        Data costs (:func:`data_costs`).
+    row, col : (E,) int ndarray
+        Undirected edges, each once.
+    weight : (E,) float ndarray
+        Affinities ``A(i, j) >= 0``.
+    config : LabelingConfig, optional
+        λ is ``config.smoothness``.
+    init : (M,) int ndarray, optional
+        Initial labels (default: argmin of D, i.e. argmax of L3D).
+    plausible : (M, K) bool ndarray, optional
+        Labels a trajectory may take in a restricted move besides those its neighbours hold
+        (e.g. ``L3D / ΣL3D >= plausible_threshold``, see :func:`plausible_labels`); default all.
+    progress : callable, optional
+        ``progress(1)`` after each label tried.
+
+    Returns
+    -------
+    LabelingResult
+        The energy trace is non-increasing (a move that would raise it is rejected).
+
+    Raises
+    ------
+    ValidationError
+        On inconsistent shapes, negative weights or out-of-range edges.
+    """
+    cfg = config or LabelingConfig()
+    D, row, col, weight = _check_graph(D, row, col, weight)
+    M, K = D.shape
+    t0 = time.perf_counter()
+    lam_w = cfg.smoothness * weight
+    labels = D.argmin(axis=1) if init is None else np.asarray(init, np.int64).copy()
+    if labels.shape != (M,) or (M and (labels.min() < 0 or labels.max() >= K)):
+        raise ValidationError(f"init: expected ({M},) labels in [0, {K})")
+    if plausible is None or cfg.method == "full":
+        plausible = np.ones((M, K), dtype=bool)
+    else:
+        plausible = check_array("plausible", plausible, (M, K), dtype=bool)
+    E = float(D[np.arange(M), labels].sum() + lam_w[labels[row] != labels[col]].sum())
+    trace = [E]
+    logger.info("alpha-expansion: %d nodes, %d edges, %d labels, E0 = %.6g", M, row.size, K, E)
+    if M == 0:
+        return LabelingResult(labels=labels, energy=trace)
+    adj = _Adjacency(M, row, col)
+    # bookkeeping of the restricted method: move number at which each node last changed and
+    # at which each label was last expanded
+    changed_at = np.zeros(M, dtype=np.int64)
+    tried_at = np.full(K, -1, dtype=np.int64)
+    move = 0
+    solved = 0
+    for sweep in range(cfg.max_sweeps):
+        improved = False
+        for alpha in range(K):
+            move += 1
+            if progress is not None:
+                progress(1)
+            is_alpha = labels == alpha
+            if cfg.method == "full":
+                free = ~is_alpha
+            else:
+                free = (plausible[:, alpha] | adj.neighbours_of(is_alpha)) & ~is_alpha
+                if tried_at[alpha] >= 0:
+                    # only components of the free set that saw a change since α was last tried
+                    # can improve: elsewhere the last (optimal) α-move is still optimal
+                    dirty = changed_at > tried_at[alpha]
+                    touched = (dirty | adj.neighbours_of(dirty)) & free
+                    free = _components_touching(free, touched, adj) if touched.any() else touched
+            tried_at[alpha] = move
+            if not free.any():
+                continue
+            tm = time.perf_counter()
+            edges = adj.edges_of(free)
+            new = expand_alpha(labels, alpha, free, D, row, col, lam_w, edges)
+            solved += 1
+            diff = np.flatnonzero(new != labels)
+            logger.debug(
+                "move %d (alpha %d): %d free, %d edges, %d changed, %.3f s",
+                move,
+                alpha,
+                int(free.sum()),
+                edges.size,
+                diff.size,
+                time.perf_counter() - tm,
+            )
+            if diff.size == 0:
+                continue
+            # energy change over the changed nodes and their edges only
+            ed = adj.edges_of(new != labels)
+            r, c, w = row[ed], col[ed], lam_w[ed]
+            dE = (D[diff, new[diff]] - D[diff, labels[diff]]).sum() + (
+                w[new[r] != new[c]].sum() - w[labels[r] != labels[c]].sum()
+            )
+            if dE < -1e-12 * max(1.0, abs(E)):
+                labels = new
+                changed_at[diff] = move
+                E += float(dE)
+                improved = True
+        trace.append(E)
+        logger.info("alpha-expansion sweep %d: E = %.6g (%d cuts)", sweep + 1, E, solved)
+        if not improved:
+            break
+    secs = time.perf_counter() - t0
+    logger.info("alpha-expansion: %d cuts in %.2f s, E = %.6g", solved, secs, E)
+    return LabelingResult(labels=labels, energy=trace, moves=solved, seconds=secs)
+
+
+def plausible_labels(l3d: np.ndarray, threshold: float) -> np.ndarray:
+    """(M, K) bool: labels whose normalised L3D reaches ``threshold`` (argmax always)."""
+    l3d = np.where(np.isfinite(l3d), np.asarray(l3d, np.float64), 0.0)
+    s = l3d.sum(axis=1, keepdims=True)
+    out = l3d >= threshold * np.where(s > 0, s, 1.0)
+    out[np.arange(l3d.shape[0]), l3d.argmax(axis=1)] = True
+    return out
+
+
+def _components_touching(free: np.ndarray, touched: np.ndarray, adj: _Adjacency) -> np.ndarray:
+    """Nodes of the connected components of the free subgraph that contain a touched node.
+
+    A breadth-first flood from the touched nodes through free nodes, one vectorised frontier
+    expansion per level.
+    """
+    out = touched.copy()
+    frontier = np.flatnonzero(touched)
+    while frontier.size:
+        cand = adj.gather(frontier, adj.nbr)
+        cand = cand[free[cand] & ~out[cand]]
+        out[cand] = True
+        frontier = np.unique(cand)
+    return out
+
+
+def label_trajectories(
+    l3d: np.ndarray,
+    row: np.ndarray,
+    col: np.ndarray,
+    weight: np.ndarray,
+    config: LabelingConfig | None = None,
+    *,
+    progress: Callable[[int], None] | None = None,
+) -> LabelingResult:
+    """Label trajectories from their 3D semantic map and affinity graph (paper Section 4.3).
+
+    Data costs from ``config.data_cost``, initialisation at the argmax of L3D, then
+    :func:`alpha_expansion` (restricted moves use :func:`plausible_labels`).
+
+    Parameters
+    ----------
+    l3d : (M, K) float ndarray
+        L3D per trajectory (rows of zeros for trajectories without semantics).
+    row, col : (E,) int ndarray
+        Affinity graph edges, each once.
+    weight : (E,) float ndarray
+        ``A(row, col)``.
+    config : LabelingConfig, optional
+
+    Returns
+    -------
+    LabelingResult
+    """
+    cfg = config or LabelingConfig()
+    l3d = check_array("l3d", l3d, (None, None), dtype=np.float64)
+    D = data_costs(l3d, cfg.data_cost)
+    init = np.nan_to_num(l3d, nan=0.0).argmax(axis=1)
+    return alpha_expansion(
+        D,
+        row,
+        col,
+        weight,
+        cfg,
+        init=init,
+        plausible=plausible_labels(l3d, cfg.plausible_threshold),
+        progress=progress,
+    )

@@ -1,0 +1,825 @@
+"""3D point tracking by multi-view optical flow (paper Section 5, steps 2-3).
+
+At every frame t the live points ``X_{t-1}`` are projected into the cameras where
+``V(X_{t-1}, c) > eps_s``, tracked there to frame t with pyramidal Lucas-Kanade (one batched call
+per camera, with a forward-backward check), re-triangulated with RANSAC from the tracked 2D
+positions, and their visibility is updated from the reprojection errors (and an occlusion test
+against the frame's own points). A trajectory stops when its mean reprojection error exceeds
+``max_mean_error_px`` or fewer than ``min_views`` cameras still see it. Dense matching
+(:mod:`.matching`) then triangulates new points; those not already covered by a live trajectory
+start new trajectories. Trajectories thus emerge and dissolve at different times.
+
+:func:`reconstruct_capture` streams a capture frame by frame into a work folder, writing each
+frame's point cloud and tracker state atomically so that an interrupted run resumes from the last
+complete frame, and assembles the ragged :class:`~pointtraj.trajectories.Trajectories` store.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import zipfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from ..atomic import atomic_path, save_npz_atomic
+from ..camera import CameraRig
+from ..errors import FileFormatError, ValidationError, check_array
+from ..trajectories import Trajectories, quantize_visibility
+from .matching import MatchingConfig, MultiViewTracks, match_frame, resolve_ambiguous
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .triangulate import Triangulation, TriangulationConfig
+
+__all__ = [
+    "ReconstructConfig",
+    "TrackState",
+    "FrameRecord",
+    "Tracker",
+    "track_flow",
+    "select_edges",
+    "covered_by",
+    "sample_colors",
+    "assemble_trajectories",
+    "reconstruct_capture",
+]
+
+logger = logging.getLogger(__name__)
+
+STATE_FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ReconstructConfig:
+    """Every parameter of the reconstruction stage (TOML table ``[reconstruct]``).
+
+    Attributes
+    ----------
+    sigma_px : float
+        sigma, the reprojection-error tolerance of the visibility
+        ``V(X, c) = exp(-(e_c / sigma)^2)`` (paper Section 5, step 2).
+    visibility_threshold : float
+        eps_s: a point is tracked in camera c at the next frame only where ``V(X, c) > eps_s``.
+        The default 0.05 keeps views with a reprojection error below ``sigma * sqrt(-ln 0.05)``,
+        about 1.7 sigma.
+    ransac_threshold_px : float
+        Inlier threshold of the RANSAC triangulation.
+    ransac_iterations : int
+        Hypotheses per point of the RANSAC triangulation.
+    max_mean_error_px : float
+        A trajectory stops when its mean inlier reprojection error exceeds this (paper: 2 px).
+    min_views : int
+        A trajectory stops when fewer cameras see it (``V > eps_s``) (paper: 2).
+    min_views_new : int
+        Inlier views a newly matched point needs to start a trajectory; 3 rejects most false
+        two-view matches (two views always agree with a wrong match along the epipolar line).
+    lk_window : int
+        Lucas-Kanade window size in pixels.
+    lk_levels : int
+        Lucas-Kanade pyramid levels above the full resolution.
+    lk_start : {"projection", "observation"}
+        Where the flow starts in each camera: the projection of ``X_{t-1}`` (the paper) or the
+        previous tracked 2D position.
+    fb_max_px : float
+        Forward-backward flow check: a view is dropped when tracking forward then backward ends
+        farther than this from the start.
+    cover_px : float
+        A new point is already covered when, in at least ``cover_views`` of its cameras, a live
+        trajectory's observation lies within this many pixels of its own.
+    cover_views : int
+        See ``cover_px``.
+    occlusion_depth_m : float
+        Depth tolerance of the occlusion test against the frame's own points (metres); 0 turns
+        the test off.
+    occlusion_cell_px : float
+        Z-buffer cell size of the occlusion test.
+    max_angle_deg : float
+        Camera pairs whose optical axes differ by more are not matched (connectivity graph).
+    max_pairs_per_camera : int
+        Keep only this many best-connected partners per camera (0: all within ``max_angle_deg``);
+        bounds the matching cost of large rigs.
+    match_every : int
+        Run dense matching (new trajectories) every this many frames (1: every frame, the paper).
+    seed : int
+        Seed of the RANSAC sampling.
+    matching : MatchingConfig
+        Feature detection and matching (table ``[reconstruct.matching]``).
+    """
+
+    sigma_px: float = 1.0
+    visibility_threshold: float = 0.05
+    ransac_threshold_px: float = 2.0
+    ransac_iterations: int = 50
+    max_mean_error_px: float = 2.0
+    min_views: int = 2
+    min_views_new: int = 2
+    lk_window: int = 21
+    lk_levels: int = 3
+    lk_start: Literal["projection", "observation"] = "projection"
+    fb_max_px: float = 1.0
+    cover_px: float = 3.0
+    cover_views: int = 2
+    occlusion_depth_m: float = 0.05
+    occlusion_cell_px: float = 8.0
+    max_angle_deg: float = 90.0
+    max_pairs_per_camera: int = 0
+    match_every: int = 1
+    seed: int = 0
+    matching: MatchingConfig = field(default_factory=MatchingConfig)
+
+    def __post_init__(self) -> None:
+        checks = {
+            "sigma_px": self.sigma_px > 0,
+            "visibility_threshold": 0 <= self.visibility_threshold < 1,
+            "ransac_threshold_px": self.ransac_threshold_px > 0,
+            "ransac_iterations": self.ransac_iterations >= 1,
+            "max_mean_error_px": self.max_mean_error_px > 0,
+            "min_views": self.min_views >= 2,
+            "min_views_new": self.min_views_new >= self.min_views,
+            "lk_window": self.lk_window >= 5,
+            "lk_levels": self.lk_levels >= 0,
+            "fb_max_px": self.fb_max_px > 0,
+            "cover_px": self.cover_px >= 0,
+            "cover_views": self.cover_views >= 1,
+            "occlusion_depth_m": self.occlusion_depth_m >= 0,
+            "occlusion_cell_px": self.occlusion_cell_px > 0,
+            "max_angle_deg": 0 < self.max_angle_deg <= 180,
+            "max_pairs_per_camera": self.max_pairs_per_camera >= 0,
+            "match_every": self.match_every >= 1,
+        }
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise ValidationError(
+                f"ReconstructConfig.{bad[0]} out of range: {getattr(self, bad[0])!r}"
+            )
+        if self.lk_start not in ("projection", "observation"):
+            raise ValidationError(
+                f"ReconstructConfig.lk_start must be 'projection' or 'observation', "
+                f"got {self.lk_start!r}"
+            )
+        if not isinstance(self.matching, MatchingConfig):
+            raise ValidationError("ReconstructConfig.matching must be a MatchingConfig")
+
+    def triangulation(self) -> TriangulationConfig:
+        """The matching :class:`TriangulationConfig`."""
+        from .triangulate import TriangulationConfig
+
+        return TriangulationConfig(
+            threshold_px=self.ransac_threshold_px,
+            sigma_px=self.sigma_px,
+            iterations=self.ransac_iterations,
+            min_views=self.min_views,
+            seed=self.seed,
+        )
+
+
+@dataclass
+class TrackState:
+    """The live trajectories after a frame.
+
+    Attributes
+    ----------
+    frame : int
+        The frame these positions belong to.
+    ids : (N,) int64 ndarray
+        Trajectory id of each live point.
+    xyz : (N, 3) float64 ndarray
+    visibility : (N, C) float32 ndarray
+    pixels : (C, N, 2) float32 ndarray
+        Tracked (inlier) observations, NaN where the camera does not see the point.
+    next_id : int
+        The id the next new trajectory gets.
+    """
+
+    frame: int
+    ids: np.ndarray
+    xyz: np.ndarray
+    visibility: np.ndarray
+    pixels: np.ndarray
+    next_id: int
+
+    @classmethod
+    def empty(cls, num_cameras: int, frame: int = -1) -> TrackState:
+        """No live trajectories."""
+        return cls(
+            frame,
+            np.zeros(0, np.int64),
+            np.zeros((0, 3)),
+            np.zeros((0, num_cameras), np.float32),
+            np.zeros((num_cameras, 0, 2), np.float32),
+            0,
+        )
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """The point-frames of one frame, as they go into the trajectory store.
+
+    Attributes
+    ----------
+    frame : int
+    ids : (N,) int64 ndarray
+    xyz : (N, 3) float32 ndarray
+    visibility : (N, C) uint8 ndarray
+        Quantised ``round(255 V)``.
+    error : (N,) float32 ndarray
+        Mean inlier reprojection error (pixels).
+    color : (N, 3) uint8 ndarray
+    num_new : int
+        How many of the points started a trajectory at this frame.
+    """
+
+    frame: int
+    ids: np.ndarray
+    xyz: np.ndarray
+    visibility: np.ndarray
+    error: np.ndarray
+    color: np.ndarray
+    num_new: int = 0
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+
+# -- building blocks --------------------------------------------------------------------------
+
+
+def track_flow(
+    prev_grey: np.ndarray,
+    grey: np.ndarray,
+    points: np.ndarray,
+    *,
+    window: int = 21,
+    levels: int = 3,
+    fb_max_px: float = 1.0,
+) -> np.ndarray:
+    """Pyramidal Lucas-Kanade flow of many points at once, with a forward-backward check.
+
+    Parameters
+    ----------
+    prev_grey, grey : (H, W) uint8 ndarray
+        Consecutive grey images of one camera.
+    points : (K, 2) float ndarray
+        Pixel positions in ``prev_grey``; NaN rows are skipped.
+    window, levels : int
+        Lucas-Kanade window size and pyramid levels.
+    fb_max_px : float
+        Maximum forward-backward error.
+
+    Returns
+    -------
+    (K, 2) float32 ndarray
+        Positions in ``grey``; NaN where the flow failed, left the image or the
+        forward-backward error exceeds ``fb_max_px``.
+    """
+    import cv2
+
+    p = check_array("points", points, (None, 2))
+    out = np.full(p.shape, np.nan, np.float32)
+    h, w = grey.shape[:2]
+    ok = np.all(np.isfinite(p), axis=1)
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        return out
+    p0 = np.ascontiguousarray(p[idx], dtype=np.float32).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
+    lk = {"winSize": (window, window), "maxLevel": levels, "criteria": crit}
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev_grey, grey, p0, None, **lk)
+    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(grey, prev_grey, p1, None, **lk)
+    p1 = p1.reshape(-1, 2)
+    fb = np.linalg.norm(p0b.reshape(-1, 2) - p0.reshape(-1, 2), axis=1)  # (K',)
+    good = (
+        (st1.ravel() == 1)
+        & (st2.ravel() == 1)
+        & (fb <= fb_max_px)
+        & (p1[:, 0] >= -0.5)
+        & (p1[:, 0] < w - 0.5)
+        & (p1[:, 1] >= -0.5)
+        & (p1[:, 1] < h - 0.5)
+    )
+    out[idx[good]] = p1[good]
+    return out
+
+
+def select_edges(
+    rig: CameraRig, max_angle_deg: float = 90.0, max_pairs_per_camera: int = 0
+) -> np.ndarray:
+    """Camera pairs to match: the connectivity graph, optionally thinned per camera.
+
+    Parameters
+    ----------
+    rig : CameraRig
+    max_angle_deg : float
+        Pairs whose viewing directions differ by more are unlikely to match (paper Section 5).
+    max_pairs_per_camera : int
+        If positive, each camera keeps only its this-many smallest-angle partners (a pair is kept
+        when either camera keeps it).
+
+    Returns
+    -------
+    (E, 2) int64 ndarray
+        Pairs ``a < b``.
+    """
+    from .connectivity import build_connectivity
+
+    graph = build_connectivity(rig, max_angle_deg=max_angle_deg)
+    edges = np.sort(np.asarray(graph.edges, dtype=np.int64).reshape(-1, 2), axis=1)
+    angles = np.asarray(graph.angles_deg, dtype=float).reshape(-1)
+    if max_pairs_per_camera <= 0 or edges.size == 0:
+        return edges
+    keep = np.zeros(len(edges), bool)
+    # per camera, rank its incident edges by angle (vectorised over the 2E incidences)
+    cam = np.concatenate([edges[:, 0], edges[:, 1]])
+    eid = np.concatenate([np.arange(len(edges))] * 2)
+    order = np.lexsort((angles[eid], cam))
+    sorted_cam = cam[order]
+    rank = np.arange(order.size) - np.searchsorted(sorted_cam, sorted_cam, side="left")
+    keep[eid[order[rank < max_pairs_per_camera]]] = True
+    return edges[keep]
+
+
+def covered_by(
+    live_pixels: np.ndarray, new_pixels: np.ndarray, radius_px: float, min_views: int
+) -> np.ndarray:
+    """Which new points a live trajectory already covers (KD-tree per camera).
+
+    Parameters
+    ----------
+    live_pixels : (C, N, 2) float ndarray
+        Live trajectories' observations at this frame (NaN where absent).
+    new_pixels : (C, Q, 2) float ndarray
+        New points' observations (NaN where absent).
+    radius_px : float
+    min_views : int
+
+    Returns
+    -------
+    (Q,) bool ndarray
+        True where, in at least ``min_views`` cameras, some live observation lies within
+        ``radius_px`` of the new point's observation.
+    """
+    from scipy.spatial import cKDTree
+
+    live = check_array("live_pixels", live_pixels, (None, None, 2))
+    new = check_array("new_pixels", new_pixels, (live.shape[0], None, 2))
+    hits = np.zeros(new.shape[1], np.int64)
+    for c in range(live.shape[0]):  # one vectorised KD-tree query per camera
+        lv = live[c][np.all(np.isfinite(live[c]), axis=1)]
+        q = np.all(np.isfinite(new[c]), axis=1)
+        if lv.shape[0] == 0 or not q.any():
+            continue
+        d, _ = cKDTree(lv).query(new[c][q], k=1, distance_upper_bound=radius_px)
+        hits[np.flatnonzero(q)[np.isfinite(d)]] += 1
+    return hits >= min_views
+
+
+def sample_colors(
+    images: Sequence[np.ndarray], pixels: np.ndarray, visibility: np.ndarray
+) -> np.ndarray:
+    """RGB colour of each point in its most visible camera.
+
+    Parameters
+    ----------
+    images : list of C (H, W, 3) uint8 RGB ndarrays
+    pixels : (C, N, 2) float ndarray
+        Observations (NaN where absent).
+    visibility : (N, C) float ndarray
+
+    Returns
+    -------
+    (N, 3) uint8 ndarray
+        Grey 128 where no camera observes the point.
+    """
+    pix = check_array("pixels", pixels, (len(images), None, 2))
+    N = pix.shape[1]
+    vis = np.where(np.all(np.isfinite(pix), axis=2).T, visibility, -1.0)  # (N, C)
+    best = np.argmax(vis, axis=1) if N else np.zeros(0, np.int64)
+    out = np.full((N, 3), 128, np.uint8)
+    has = vis[np.arange(N), best] >= 0 if N else np.zeros(0, bool)
+    for c, img in enumerate(images):
+        sel = np.flatnonzero(has & (best == c))
+        if sel.size == 0:
+            continue
+        h, w = img.shape[:2]
+        x = np.clip(np.rint(pix[c, sel, 0]).astype(np.int64), 0, w - 1)
+        y = np.clip(np.rint(pix[c, sel, 1]).astype(np.int64), 0, h - 1)
+        out[sel] = img[y, x]
+    return out
+
+
+def _to_grey(image: np.ndarray) -> np.ndarray:
+    import cv2
+
+    img = np.asarray(image)
+    if img.ndim == 2:
+        return img
+    return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+
+
+# -- the tracker ------------------------------------------------------------------------------
+
+
+class Tracker:
+    """Frame-by-frame trajectory reconstruction (tracking -> triangulation -> visibility).
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    config : ReconstructConfig, optional
+    edges : (E, 2) int ndarray, optional
+        Camera pairs to match (default :func:`select_edges` with the config's settings).
+    state : TrackState, optional
+        Resume from this state (its frame must precede the next :meth:`step`).
+    first_frame : int, optional
+        Phase of ``config.match_every``: matching runs at frames ``first_frame + k * match_every``
+        (default: the first frame stepped), and whenever tracking restarts.
+    """
+
+    def __init__(
+        self,
+        rig: CameraRig,
+        config: ReconstructConfig | None = None,
+        edges: np.ndarray | None = None,
+        state: TrackState | None = None,
+        first_frame: int | None = None,
+    ) -> None:
+        self.rig = rig
+        self.config = config or ReconstructConfig()
+        self.tri_config = self.config.triangulation()
+        if edges is None:
+            edges = select_edges(rig, self.config.max_angle_deg, self.config.max_pairs_per_camera)
+        self.edges = check_array("edges", edges, (None, 2), dtype=np.int64)
+        self.state = state if state is not None else TrackState.empty(len(rig))
+        self._prev_grey: list[np.ndarray] | None = None
+        self._first_frame = first_frame
+
+    def set_previous_images(self, images: Sequence[np.ndarray]) -> None:
+        """Give the images of ``state.frame`` (needed to resume tracking)."""
+        self._prev_grey = [_to_grey(im) for im in images]
+
+    # -- one frame -----------------------------------------------------------------------------
+    def step(self, t: int, images: Sequence[np.ndarray]) -> FrameRecord:
+        """Advance to frame ``t``.
+
+        Parameters
+        ----------
+        t : int
+            The frame index (``state.frame + 1`` to continue trajectories; any other frame
+            starts afresh).
+        images : list of C (H, W, 3) uint8 RGB ndarrays
+            The frame's images in rig order.
+
+        Returns
+        -------
+        FrameRecord
+            The points alive at frame t.
+        """
+        from .triangulate import triangulate_ransac
+
+        cfg = self.config
+        rig = self.rig
+        C = len(rig)
+        if len(images) != C:
+            raise ValidationError(f"images: expected {C} images, got {len(images)}")
+        grey = [_to_grey(im) for im in images]
+        st = self.state
+        restart = st.frame != t - 1 or self._prev_grey is None
+        if restart:
+            if len(st):
+                logger.info("frame %d does not follow %d: live trajectories end", t, st.frame)
+            st = TrackState(t - 1, *_empty_live(C), next_id=st.next_id)
+        if self._first_frame is None:
+            self._first_frame = t
+
+        # 1. tracking: LK flow of the live points in their visible cameras
+        obs = np.full((C, len(st), 2), np.nan)
+        if len(st):
+            if cfg.lk_start == "projection":
+                start = rig.project(st.xyz).pixels  # (C, N, 2)
+            else:
+                start = st.pixels.astype(np.float64)
+            for c in range(C):
+                sel = np.flatnonzero(st.visibility[:, c] > cfg.visibility_threshold)
+                if sel.size:
+                    obs[c, sel] = track_flow(
+                        self._prev_grey[c],
+                        grey[c],
+                        start[c, sel],
+                        window=cfg.lk_window,
+                        levels=cfg.lk_levels,
+                        fb_max_px=cfg.fb_max_px,
+                    )
+        tri_old = triangulate_ransac(rig, obs, self.tri_config)
+        keep_old = self._alive(tri_old)
+
+        # 2. dense matching: new points where no live trajectory is
+        new_tri, new_obs = None, np.zeros((C, 0, 2))
+        if restart or (t - self._first_frame) % cfg.match_every == 0:
+            tracks = match_frame(rig, images, self.edges, cfg.matching)
+            new_tri, new_obs = self._triangulate_tracks(tracks)
+            keep_new = self._alive(new_tri) & (
+                np.count_nonzero(new_tri.inliers, axis=0) >= cfg.min_views_new
+            )
+            live_pix = np.where(tri_old.inliers[..., None] & keep_old[None, :, None], obs, np.nan)
+            new_pix = np.where(new_tri.inliers[..., None], new_obs, np.nan)
+            covered = covered_by(live_pix, new_pix, cfg.cover_px, cfg.cover_views)
+            keep_new &= ~covered
+            logger.debug("frame %d: %d new points, %d covered", t, keep_new.sum(), covered.sum())
+
+        # 3. union, occlusion, visibility, stopping rule
+        parts = [(tri_old, obs, keep_old)]
+        if new_tri is not None:
+            parts.append((new_tri, new_obs, keep_new))
+        xyz = np.concatenate([p[0].points[p[2]] for p in parts])  # (N, 3)
+        vis = np.concatenate([p[0].visibility[p[2]] for p in parts])  # (N, C)
+        err = np.concatenate([p[0].mean_error[p[2]] for p in parts])
+        pix = np.concatenate(
+            [np.where(p[0].inliers[..., None], p[1], np.nan)[:, p[2]] for p in parts], axis=1
+        )  # (C, N, 2)
+        n_old = int(keep_old.sum())
+        old_ids = st.ids[keep_old]
+        if cfg.occlusion_depth_m > 0 and len(xyz):
+            from .triangulate import occlusion_test
+
+            occ = occlusion_test(
+                rig, xyz, cfg.occlusion_depth_m, cell_px=cfg.occlusion_cell_px
+            )  # (N, C)
+            vis = np.where(occ, np.float32(0), vis)
+        seen = np.count_nonzero(vis > cfg.visibility_threshold, axis=1) >= cfg.min_views
+        n_new = int(seen[n_old:].sum())
+        ids = np.concatenate([old_ids[seen[:n_old]], st.next_id + np.arange(n_new)])
+        xyz, vis, err, pix = xyz[seen], vis[seen], err[seen], pix[:, seen]
+        pix = np.where((vis.T > cfg.visibility_threshold)[..., None], pix, np.nan)
+        self.state = TrackState(t, ids, xyz, vis, pix.astype(np.float32), st.next_id + n_new)
+        self._prev_grey = grey
+        logger.info(
+            "frame %d: %d tracked of %d, %d new, %d live",
+            t,
+            int(seen[:n_old].sum()),
+            len(st),
+            n_new,
+            len(ids),
+        )
+        return FrameRecord(
+            frame=t,
+            ids=ids,
+            xyz=xyz.astype(np.float32),
+            visibility=quantize_visibility(vis),
+            error=err.astype(np.float32),
+            color=sample_colors(images, pix, vis),
+            num_new=n_new,
+        )
+
+    def _alive(self, tri: Triangulation) -> np.ndarray:
+        cfg = self.config
+        with np.errstate(invalid="ignore"):
+            return (
+                tri.valid
+                & (tri.mean_error <= cfg.max_mean_error_px)
+                & (np.count_nonzero(tri.inliers, axis=0) >= cfg.min_views)
+            )
+
+    def _triangulate_tracks(self, tracks: MultiViewTracks) -> tuple[Triangulation, np.ndarray]:
+        """RANSAC-triangulate matched tracks; ambiguous ones keep their closest keypoints."""
+        from .triangulate import Triangulation, triangulate_ransac
+
+        tri = triangulate_ransac(self.rig, tracks.observations, self.tri_config)
+        obs = tracks.observations
+        amb = np.flatnonzero(tracks.ambiguous)
+        if amb.size:
+            obs = resolve_ambiguous(self.rig, tracks, tri.points)
+            sub = triangulate_ransac(self.rig, obs[:, amb], self.tri_config)
+            fields = {}
+            for name in ("points", "inliers", "errors", "visibility", "mean_error"):
+                whole = getattr(tri, name).copy()
+                part = getattr(sub, name)
+                if whole.ndim == 2 and name in ("inliers", "errors"):
+                    whole[:, amb] = part
+                else:
+                    whole[amb] = part
+                fields[name] = whole
+            tri = Triangulation(**fields)
+        return tri, obs
+
+
+def _empty_live(C: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    return (
+        np.zeros(0, np.int64),
+        np.zeros((0, 3)),
+        np.zeros((0, C), np.float32),
+        np.zeros((C, 0, 2), np.float32),
+    )
+
+
+# -- assembling the store ---------------------------------------------------------------------
+
+
+def assemble_trajectories(
+    records: Sequence[FrameRecord], camera_names: list[str], fps: float, num_frames: int
+) -> Trajectories:
+    """Build the ragged store from per-frame records (one stable sort by trajectory id).
+
+    Parameters
+    ----------
+    records : list of FrameRecord
+        In frame order; a trajectory's frames must be consecutive.
+    camera_names : list of str
+    fps : float
+    num_frames : int
+
+    Returns
+    -------
+    Trajectories
+        Trajectory m is the one with id m; ids must be ``0 .. M-1``.
+    """
+    C = len(camera_names)
+    if not records:
+        return Trajectories(
+            np.zeros(0, np.int64),
+            np.zeros(1, np.int64),
+            np.zeros((0, 3), np.float32),
+            np.zeros((0, C), np.uint8),
+            np.zeros(0, np.float32),
+            np.zeros((0, 3), np.uint8),
+            camera_names=list(camera_names),
+            fps=fps,
+            num_frames=num_frames,
+        )
+    ids = np.concatenate([r.ids for r in records])  # (P,)
+    frames = np.concatenate([np.full(len(r), r.frame, np.int64) for r in records])
+    order = np.lexsort((frames, ids))  # by id, then frame
+    ids_s = ids[order]
+    M = int(ids_s[-1]) + 1 if ids_s.size else 0
+    counts = np.bincount(ids_s, minlength=M)
+    if np.any(counts == 0):
+        raise ValidationError("assemble_trajectories: trajectory ids are not 0 .. M-1")
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    first = frames[order][offsets[:-1]]
+    span = frames[order][offsets[1:] - 1] - first + 1
+    if np.any(span != counts):
+        raise ValidationError("assemble_trajectories: a trajectory skips a frame")
+    return Trajectories(
+        first_frame=first,
+        offsets=offsets,
+        xyz=np.concatenate([r.xyz for r in records])[order],
+        visibility=np.concatenate([r.visibility for r in records])[order],
+        reprojection_error=np.concatenate([r.error for r in records])[order],
+        color=np.concatenate([r.color for r in records])[order],
+        camera_names=list(camera_names),
+        fps=fps,
+        num_frames=num_frames,
+    )
+
+
+# -- work folder streaming --------------------------------------------------------------------
+
+
+def _state_path(work: Path, t: int) -> Path:
+    return work / "state" / f"{t:06d}.npz"
+
+
+def _save_state(path: Path, record: FrameRecord, state: TrackState) -> None:
+    save_npz_atomic(
+        path,
+        format_version=np.int64(STATE_FORMAT_VERSION),
+        frame=np.int64(record.frame),
+        rec_ids=record.ids,
+        rec_xyz=record.xyz,
+        rec_visibility=record.visibility,
+        rec_error=record.error,
+        rec_color=record.color,
+        rec_num_new=np.int64(record.num_new),
+        live_ids=state.ids,
+        live_xyz=state.xyz,
+        live_visibility=state.visibility,
+        live_pixels=state.pixels,
+        next_id=np.int64(state.next_id),
+    )
+
+
+def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+        t = int(d["frame"])
+        rec = FrameRecord(
+            t,
+            d["rec_ids"],
+            d["rec_xyz"],
+            d["rec_visibility"],
+            d["rec_error"],
+            d["rec_color"],
+            int(d["rec_num_new"]),
+        )
+        st = TrackState(
+            t,
+            d["live_ids"],
+            d["live_xyz"],
+            d["live_visibility"],
+            d["live_pixels"],
+            int(d["next_id"]),
+        )
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
+    if st.visibility.shape[1:] != (num_cameras,) or rec.visibility.shape[1:] != (num_cameras,):
+        raise FileFormatError(path, f"tracker state is not for {num_cameras} cameras")
+    return rec, st
+
+
+def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
+    """Write one frame's points as a PLY with ``visibility`` and ``track_id`` (int32) attributes.
+
+    Parameters
+    ----------
+    path : path-like
+    record : FrameRecord
+    """
+    import open3d as o3d
+
+    pcd = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(record.xyz)))
+    pcd.point.colors = o3d.core.Tensor(record.color.astype(np.float32) / 255.0)
+    pcd.point.visibility = o3d.core.Tensor(
+        np.ascontiguousarray(record.visibility.astype(np.float32) / 255.0)
+    )
+    # PLY has no 64-bit integers: track ids are written as int32 (M < 2^31)
+    pcd.point.track_id = o3d.core.Tensor(record.ids.astype(np.int32)[:, None])
+    with atomic_path(path) as tmp:
+        if not o3d.t.io.write_point_cloud(str(tmp), pcd):
+            raise FileFormatError(path, "Open3D failed to write the point cloud")
+
+
+def reconstruct_capture(
+    capture,
+    work: str | os.PathLike,
+    frames: range | None = None,
+    config: ReconstructConfig | None = None,
+    *,
+    on_frame: Callable[[FrameRecord], None] | None = None,
+) -> Trajectories:
+    """Reconstruct trajectories of a capture into a work folder, resuming where it stopped.
+
+    Writes ``clouds/<t:06d>.ply`` and ``state/<t:06d>.npz`` per frame (the state file last, so
+    that it marks the frame complete), then ``trajectories.npz``. Frames whose state file
+    exists (contiguously from ``frames.start``) are not recomputed.
+
+    Parameters
+    ----------
+    capture : pointtraj.session.Capture
+        With ``rig``, ``camera_names``, ``num_frames``, ``fps`` and ``read(camera, frame)``.
+    work : path-like
+        The work folder.
+    frames : range, optional
+        Frames to process (step 1), default all.
+    config : ReconstructConfig, optional
+    on_frame : callable, optional
+        Called with each frame's record (also for resumed frames), e.g. to advance a progress
+        bar.
+
+    Returns
+    -------
+    Trajectories
+    """
+    cfg = config or ReconstructConfig()
+    work = Path(work)
+    rig = capture.rig
+    names = list(rig.names)
+    T = int(capture.num_frames)
+    frames = range(T) if frames is None else frames
+    if frames.step != 1 or len(frames) == 0 or frames.start < 0 or frames.stop > T:
+        raise ValidationError(
+            f"frames {frames.start}:{frames.stop} must be a non-empty range within [0, {T})"
+        )
+    records: list[FrameRecord] = []
+    state = None
+    for t in frames:  # resume: contiguous complete frames
+        path = _state_path(work, t)
+        if not path.is_file():
+            break
+        rec, state = _load_state(path, len(rig))
+        records.append(rec)
+        if on_frame is not None:
+            on_frame(rec)
+    if records:
+        logger.info("resuming after frame %d (%d frames done)", records[-1].frame, len(records))
+    tracker = Tracker(rig, cfg, state=state, first_frame=frames.start)
+    if state is not None and len(records) < len(frames):
+        tracker.set_previous_images([capture.read(n, state.frame) for n in names])
+    for t in frames[len(records) :]:
+        images = [capture.read(n, t) for n in names]
+        rec = tracker.step(t, images)
+        write_frame_cloud(work / "clouds" / f"{t:06d}.ply", rec)
+        _save_state(_state_path(work, t), rec, tracker.state)
+        records.append(rec)
+        if on_frame is not None:
+            on_frame(rec)
+    traj = assemble_trajectories(records, names, float(capture.fps), T)
+    traj.save(work / "trajectories.npz")
+    return traj

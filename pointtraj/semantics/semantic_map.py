@@ -1,0 +1,581 @@
+"""The 3D semantic map L3D: per trajectory, the time average of view-pooled 2D confidences.
+
+The paper's Eq. 1-2: for trajectory i alive over frames T_e..T_d,
+``L3D(X^i) = 1 / (T_d - T_e + 1) sum_t Pool_c L2D(P(X_t^i, c) | I_c)``.
+
+:func:`build_semantic_map` streams over frames: at frame t it runs the recogniser once per
+camera image, keeps that frame's C maps (coarse, a few MB each), samples them at the projections
+of the points alive at t in chunks of :attr:`SemanticsConfig.chunk_size` points, pools each
+point-frame across cameras (:func:`~pointtraj.semantics.pooling.pool_views`) and adds the result
+to per-trajectory (M, K) accumulators; then the maps are dropped. Memory is therefore
+O(M K + C h w K + chunk C K) and does not grow with the number of frames. Point-frames for which
+pooling yields NaN (no usable camera) are left out of the average.
+
+For the temporal-consistency study the pooled per-frame confidences of a seeded random subset
+of trajectories (all of them when they fit in :attr:`SemanticsConfig.sample_budget_mb`) are kept
+as well (:attr:`SemanticMap.samples`). The file format is ``data_specs/semantic_map.md``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from ..atomic import save_npz_atomic
+from ..errors import FileFormatError, ValidationError
+from ..trajectories import Trajectories
+from .pooling import POOLINGS, pool_views
+from .recognizers.base import ImageContext, Recognizer
+from .sampling import sample_confidences
+
+__all__ = [
+    "SemanticsConfig",
+    "SemanticMap",
+    "build_semantic_map",
+    "normalized_correlation",
+    "load_semantic_map",
+    "save_semantic_map",
+]
+
+logger = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class SemanticsConfig:
+    """Parameters of the semantic map.
+
+    Attributes
+    ----------
+    eps_e : float
+        The paper's visibility threshold ε_e: only cameras with ``V(X, c) > eps_e`` take part in
+        view pooling. With ``V = exp(-(e / σ)^2)`` the default 0.1 keeps cameras whose
+        reprojection error is below about 1.5 σ; with ground-truth visibility (0 or 1) any value
+        in (0, 1) is the same.
+    poolings : tuple of str
+        Pooling methods to compute (see :mod:`pointtraj.semantics.pooling`); the first is the
+        default one of the map.
+    chunk_size : int
+        Points sampled and pooled at once (bounds the (C, chunk, K) temporaries).
+    sample_budget_mb : float
+        Memory cap of the per-frame pooled samples kept for the temporal-consistency study.
+    sample_tracks : int or None
+        At most this many trajectories get per-frame samples (None: as many as fit the budget).
+    seed : int
+        Seed of the random choice of sampled trajectories.
+    """
+
+    eps_e: float = 0.1
+    poolings: tuple[str, ...] = ("view", "average")
+    chunk_size: int = 4096
+    sample_budget_mb: float = 256.0
+    sample_tracks: int | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.eps_e < 1.0:
+            raise ValidationError(f"eps_e: must be in [0, 1), got {self.eps_e}")
+        if not self.poolings:
+            raise ValidationError("poolings: need at least one pooling method")
+        for p in self.poolings:
+            if p not in POOLINGS:
+                raise ValidationError(f"poolings: unknown {p!r} (valid: {', '.join(POOLINGS)})")
+        if len(set(self.poolings)) != len(self.poolings):
+            raise ValidationError(f"poolings: duplicates in {self.poolings}")
+        if self.chunk_size < 1:
+            raise ValidationError(f"chunk_size: must be >= 1, got {self.chunk_size}")
+        if self.sample_budget_mb < 0:
+            raise ValidationError(f"sample_budget_mb: must be >= 0, got {self.sample_budget_mb}")
+
+
+class CaptureLike(Protocol):
+    """What :func:`build_semantic_map` needs of a capture (``pointtraj.session.Capture``)."""
+
+    rig: Any
+
+    def read(self, camera: str | int, frame: int) -> np.ndarray: ...
+
+
+def normalized_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pearson correlation across the K classes of row pairs (the paper's NC).
+
+    Parameters
+    ----------
+    a, b : (n, K) float ndarrays
+
+    Returns
+    -------
+    (n,) float64 ndarray
+        ``sum_k (a_k - mean a)(b_k - mean b) / (||a - mean a|| ||b - mean b||)``; NaN where a
+        row has zero variance or contains NaN.
+
+    Examples
+    --------
+    >>> normalized_correlation(np.array([[1.0, 0, 0], [1, 0, 0]]), np.array([[2.0, 0, 0], [0, 1, 0]]))
+    array([ 1. , -0.5])
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 2:
+        raise ValidationError(f"a, b: expected two (n, K) arrays, got {a.shape} and {b.shape}")
+    a = a - a.mean(axis=1, keepdims=True)
+    b = b - b.mean(axis=1, keepdims=True)
+    den = np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nc = (a * b).sum(axis=1) / den
+    nc[~(den > 0)] = np.nan
+    return nc
+
+
+@dataclass(eq=False)
+class SemanticMap:
+    """The 3D semantic map of M trajectories over K classes, for one or more poolings.
+
+    Attributes
+    ----------
+    class_names : tuple of K str
+    L3D : dict of str to (M, K) float32 ndarray
+        Per pooling, the mean over each trajectory's lifetime of its pooled confidences; a
+        trajectory with no pooled frame (``count == 0``) has a row of zeros.
+    count : dict of str to (M,) int32 ndarray
+        Per pooling, the number of frames that entered the average.
+    sample_tracks : (S,) int64 ndarray
+        Trajectories whose per-frame pooled confidences are kept (sorted).
+    sample_offsets : (S + 1,) int64 ndarray
+        Rows ``sample_offsets[s]:sample_offsets[s + 1]`` of :attr:`samples` are trajectory
+        ``sample_tracks[s]``'s frames, first frame first.
+    sample_first_frame : (S,) int64 ndarray
+        First frame of each sampled trajectory.
+    samples : dict of str to (Q, K) float32 ndarray
+        Per pooling, the pooled confidences of the sampled point-frames (NaN rows where pooling
+        found no usable camera).
+    eps_e : float
+        Visibility threshold used.
+    recognizer : str
+        Name of the recogniser used.
+    fps : float
+        Frame rate of the trajectories.
+    """
+
+    class_names: tuple[str, ...]
+    L3D: dict[str, np.ndarray]
+    count: dict[str, np.ndarray]
+    sample_tracks: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    sample_offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+    sample_first_frame: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    samples: dict[str, np.ndarray] = field(default_factory=dict)
+    eps_e: float = SemanticsConfig.eps_e
+    recognizer: str = ""
+    fps: float = 30.0
+
+    def __post_init__(self) -> None:
+        self.class_names = tuple(self.class_names)
+        K = len(self.class_names)
+        if not self.L3D:
+            raise ValidationError("L3D: needs at least one pooling")
+        M = None
+        for p, arr in self.L3D.items():
+            if arr.ndim != 2 or arr.shape[1] != K or (M is not None and arr.shape[0] != M):
+                raise ValidationError(f"L3D[{p!r}]: expected shape (M, {K}), got {arr.shape}")
+            M = arr.shape[0]
+            if p not in self.count or self.count[p].shape != (M,):
+                raise ValidationError(f"count[{p!r}]: expected shape ({M},)")
+        S = len(self.sample_tracks)
+        if self.sample_offsets.shape != (S + 1,) or self.sample_first_frame.shape != (S,):
+            raise ValidationError("sample_offsets/sample_first_frame: inconsistent with tracks")
+        Q = int(self.sample_offsets[-1])
+        for p, arr in self.samples.items():
+            if arr.shape != (Q, K):
+                raise ValidationError(f"samples[{p!r}]: expected shape ({Q}, {K}), got {arr.shape}")
+
+    @property
+    def poolings(self) -> tuple[str, ...]:
+        """The pooling methods held, the default first."""
+        return tuple(self.L3D)
+
+    @property
+    def num_trajectories(self) -> int:
+        """M."""
+        return next(iter(self.L3D.values())).shape[0]
+
+    @property
+    def confidences(self) -> np.ndarray:
+        """(M, K) float32 L3D of the default (first) pooling."""
+        return self.L3D[self.poolings[0]]
+
+    def argmax_labels(self, pooling: str | None = None) -> np.ndarray:
+        """(M,) int64 argmax class of L3D; -1 for trajectories with no pooled frame."""
+        p = self._pooling(pooling)
+        labels = np.argmax(self.L3D[p], axis=1).astype(np.int64)
+        labels[self.count[p] == 0] = -1
+        return labels
+
+    def _pooling(self, pooling: str | None) -> str:
+        if pooling is None:
+            return self.poolings[0]
+        if pooling not in self.L3D:
+            raise ValidationError(
+                f"pooling: {pooling!r} not in this map (has: {', '.join(self.poolings)})"
+            )
+        return pooling
+
+    def temporal_consistency(
+        self, lag: int, pooling: str | None = None
+    ) -> tuple[float, float, int]:
+        """The paper's temporal consistency: NC between first-frame and later pooled confidences.
+
+        Parameters
+        ----------
+        lag : int
+            Frames between the two samples (e.g. ``fps`` for 1 s).
+        pooling : str, optional
+            Default: the map's first pooling.
+
+        Returns
+        -------
+        mean, std : float
+            Over the sampled trajectories that live at least ``lag + 1`` frames and whose two
+            pooled samples are defined (NaN if there are none), of
+            ``NC(L_pool(first frame), L_pool(first frame + lag))`` (:func:`normalized_correlation`).
+        n : int
+            Number of trajectories averaged.
+        """
+        p = self._pooling(pooling)
+        if p not in self.samples:
+            raise ValidationError(f"pooling: no per-frame samples kept for {p!r}")
+        lengths = np.diff(self.sample_offsets)
+        ok = lengths > lag
+        start = self.sample_offsets[:-1][ok]
+        nc = normalized_correlation(self.samples[p][start], self.samples[p][start + lag])
+        nc = nc[np.isfinite(nc)]
+        if nc.size == 0:
+            return float("nan"), float("nan"), 0
+        return float(nc.mean()), float(nc.std()), int(nc.size)
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write ``semantic_map.npz`` atomically (format: ``data_specs/semantic_map.md``)."""
+        arrays: dict[str, np.ndarray] = {
+            "format_version": np.array(FORMAT_VERSION),
+            "class_names": np.array(self.class_names, dtype=str),
+            "poolings": np.array(self.poolings, dtype=str),
+            "sample_tracks": self.sample_tracks.astype(np.int64),
+            "sample_offsets": self.sample_offsets.astype(np.int64),
+            "sample_first_frame": self.sample_first_frame.astype(np.int64),
+            "eps_e": np.array(self.eps_e, dtype=np.float64),
+            "recognizer": np.array(self.recognizer),
+            "fps": np.array(self.fps, dtype=np.float64),
+        }
+        for p in self.poolings:
+            arrays[f"L3D_{p}"] = self.L3D[p].astype(np.float32)
+            arrays[f"count_{p}"] = self.count[p].astype(np.int32)
+            if p in self.samples:
+                arrays[f"samples_{p}"] = self.samples[p].astype(np.float32)
+        save_npz_atomic(path, **arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> SemanticMap:
+        """Read ``semantic_map.npz``.
+
+        Raises
+        ------
+        FileFormatError
+            Missing file, missing array, wrong version or inconsistent shapes (naming the array).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileFormatError(path, "no such file")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except (OSError, ValueError) as exc:
+            raise FileFormatError(path, f"unreadable: {exc}") from None
+        for key in ("format_version", "class_names", "poolings"):
+            if key not in arrays:
+                raise FileFormatError(path, f"missing array {key!r}")
+        if int(arrays["format_version"]) != FORMAT_VERSION:
+            raise FileFormatError(
+                path, f"format_version {int(arrays['format_version'])} (expected {FORMAT_VERSION})"
+            )
+        poolings = [str(p) for p in arrays["poolings"]]
+        L3D, count, samples = {}, {}, {}
+        for p in poolings:
+            for key in (f"L3D_{p}", f"count_{p}"):
+                if key not in arrays:
+                    raise FileFormatError(path, f"missing array {key!r}")
+            L3D[p] = arrays[f"L3D_{p}"].astype(np.float32)
+            count[p] = arrays[f"count_{p}"].astype(np.int32)
+            if f"samples_{p}" in arrays:
+                samples[p] = arrays[f"samples_{p}"].astype(np.float32)
+        try:
+            return cls(
+                class_names=tuple(str(n) for n in arrays["class_names"]),
+                L3D=L3D,
+                count=count,
+                sample_tracks=arrays.get("sample_tracks", np.zeros(0, np.int64)),
+                sample_offsets=arrays.get("sample_offsets", np.zeros(1, np.int64)),
+                sample_first_frame=arrays.get("sample_first_frame", np.zeros(0, np.int64)),
+                samples=samples,
+                eps_e=float(arrays.get("eps_e", SemanticsConfig.eps_e)),
+                recognizer=str(arrays.get("recognizer", "")),
+                fps=float(arrays.get("fps", 30.0)),
+            )
+        except ValidationError as exc:
+            raise FileFormatError(path, str(exc)) from None
+
+
+def load_semantic_map(path: str | os.PathLike) -> SemanticMap:
+    """Read ``semantic_map.npz`` (same as :meth:`SemanticMap.load`)."""
+    return SemanticMap.load(path)
+
+
+def save_semantic_map(semantic_map: SemanticMap, path: str | os.PathLike) -> None:
+    """Write ``semantic_map.npz`` (same as :meth:`SemanticMap.save`)."""
+    semantic_map.save(path)
+
+
+def _select_sample_tracks(
+    trajectories: Trajectories, K: int, n_poolings: int, config: SemanticsConfig
+) -> np.ndarray:
+    """Sorted trajectories whose per-frame samples fit the memory budget."""
+    lengths = trajectories.lengths
+    M = len(lengths)
+    max_rows = int(config.sample_budget_mb * 2**20 // max(1, 4 * K * n_poolings))
+    limit = M if config.sample_tracks is None else min(M, config.sample_tracks)
+    if limit >= M and lengths.sum() <= max_rows:
+        return np.arange(M, dtype=np.int64)
+    order = np.random.default_rng(config.seed).permutation(M)[:limit]
+    keep = order[np.cumsum(lengths[order]) <= max_rows]
+    return np.sort(keep).astype(np.int64)
+
+
+def build_semantic_map(
+    capture: CaptureLike | str | os.PathLike,
+    trajectories: Trajectories | str | os.PathLike,
+    recognizer: Recognizer,
+    poolings: tuple[str, ...] | None = None,
+    eps_e: float | None = None,
+    *,
+    config: SemanticsConfig | None = None,
+    frames: range | None = None,
+    capture_dir: str | os.PathLike | None = None,
+    progress: bool = False,
+) -> SemanticMap:
+    """Build the 3D semantic map of trajectories from a capture's images.
+
+    Parameters
+    ----------
+    capture : Capture or path-like
+        The capture (``pointtraj.session.Capture``, or its folder): its rig must contain the
+        trajectories' cameras.
+    trajectories : Trajectories or path-like
+        The trajectory store (or its ``trajectories.npz``); its visibility gives V.
+    recognizer : Recognizer
+        Produces L2D per image; its ``class_names`` are the map's classes.
+    poolings : tuple of str, optional
+        Overrides ``config.poolings``.
+    eps_e : float, optional
+        Overrides ``config.eps_e``.
+    config : SemanticsConfig, optional
+    frames : range, optional
+        Frames to process (default: all ``trajectories.num_frames``). Point-frames outside are
+        left out of the averages.
+    capture_dir : path-like, optional
+        Capture folder passed to the recogniser in :class:`ImageContext` (default: the
+        capture's ``path`` attribute, or ``capture`` itself when it is a path).
+    progress : bool
+        Show a progress bar over frames.
+
+    Returns
+    -------
+    SemanticMap
+
+    Raises
+    ------
+    ValidationError
+        If a trajectory camera is missing from the rig, or the recogniser's output has the
+        wrong number of channels.
+    """
+    config = config or SemanticsConfig()
+    if poolings is not None or eps_e is not None:
+        from dataclasses import replace
+
+        config = replace(
+            config,
+            **({"poolings": tuple(poolings)} if poolings is not None else {}),
+            **({"eps_e": float(eps_e)} if eps_e is not None else {}),
+        )
+    if isinstance(capture, str | os.PathLike):
+        from ..session import Capture
+
+        capture_dir = capture_dir or capture
+        capture = Capture.open(capture)
+    if capture_dir is None:
+        for attr in ("path", "root", "directory"):
+            if getattr(capture, attr, None) is not None:
+                capture_dir = getattr(capture, attr)
+                break
+    if isinstance(trajectories, str | os.PathLike):
+        trajectories = Trajectories.load(trajectories)
+    names = list(trajectories.camera_names)
+    missing = [n for n in names if n not in capture.rig.names]
+    if missing:
+        raise ValidationError(
+            f"trajectories: camera {missing[0]!r} is not in the capture's rig "
+            f"({len(capture.rig)} cameras)"
+        )
+    rig = capture.rig.subset(names)
+    sizes = np.asarray(rig.sizes)  # (C, 2) (W, H)
+    class_names = tuple(recognizer.class_names)
+    K = len(class_names)
+    M, C = len(trajectories), len(names)
+    pools = config.poolings
+    eps = config.eps_e
+    needs_image = getattr(recognizer, "needs_image", True)
+    ctx_capture = None if capture_dir is None else os.fspath(capture_dir)
+
+    sums = {p: np.zeros((M, K), dtype=np.float64) for p in pools}
+    counts = {p: np.zeros(M, dtype=np.int32) for p in pools}
+    sample_tracks = _select_sample_tracks(trajectories, K, len(pools), config)
+    lengths = trajectories.lengths
+    sample_offsets = np.zeros(len(sample_tracks) + 1, dtype=np.int64)
+    np.cumsum(lengths[sample_tracks], out=sample_offsets[1:])
+    slot = np.full(M, -1, dtype=np.int64)
+    slot[sample_tracks] = np.arange(len(sample_tracks))
+    samples = {p: np.full((int(sample_offsets[-1]), K), np.nan, np.float32) for p in pools}
+    first_frame = trajectories.first_frame
+    logger.info(
+        "semantic map: %d trajectories, %d cameras, %d classes, poolings %s; per-frame samples "
+        "of %d trajectories",
+        M,
+        C,
+        K,
+        ", ".join(pools),
+        len(sample_tracks),
+    )
+
+    frames = range(trajectories.num_frames) if frames is None else frames
+    with contextlib.ExitStack() as stack:
+        iterator: Any = frames
+        if progress:
+            import click
+
+            iterator = stack.enter_context(
+                click.progressbar(frames, label="semantic map", show_pos=True)
+            )
+        for t in iterator:
+            fs = trajectories.frame(int(t))
+            N = len(fs.track_id)
+            if N == 0:
+                continue
+            V = fs.visibility  # (N, C)
+            if "average" in pools:
+                needed = np.ones(C, dtype=bool)
+            else:
+                needed = (V > eps).any(axis=0)  # (C,)
+            # This frame's maps, one per camera (coarse: a few MB each); dropped after the frame.
+            maps: list[np.ndarray | None] = [None] * C
+            for c in np.flatnonzero(needed):
+                image = capture.read(names[c], int(t)) if needs_image else None
+                L2D = recognizer.recognize(
+                    image, ImageContext(camera=names[c], frame=int(t), capture=ctx_capture)
+                )
+                if L2D.ndim != 3 or L2D.shape[2] != K:
+                    raise ValidationError(
+                        f"recogniser {recognizer.name!r} returned shape {L2D.shape} for camera "
+                        f"{names[c]!r} frame {t}; expected (h, w, {K})"
+                    )
+                maps[c] = L2D
+            for start in range(0, N, config.chunk_size):
+                sl = slice(start, min(N, start + config.chunk_size))
+                _pool_chunk(
+                    fs.xyz[sl],
+                    V[sl],
+                    fs.track_id[sl],
+                    int(t),
+                    rig,
+                    sizes,
+                    maps,
+                    pools,
+                    eps,
+                    sums,
+                    counts,
+                    slot,
+                    sample_offsets,
+                    first_frame,
+                    samples,
+                )
+            del maps
+
+    L3D = {}
+    for p in pools:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = sums[p] / counts[p][:, None]
+        mean[counts[p] == 0] = 0.0
+        L3D[p] = mean.astype(np.float32)
+    return SemanticMap(
+        class_names=class_names,
+        L3D=L3D,
+        count=counts,
+        sample_tracks=sample_tracks,
+        sample_offsets=sample_offsets,
+        sample_first_frame=first_frame[sample_tracks].astype(np.int64),
+        samples=samples,
+        eps_e=eps,
+        recognizer=recognizer.name,
+        fps=float(trajectories.fps),
+    )
+
+
+def _pool_chunk(
+    xyz: np.ndarray,
+    V: np.ndarray,
+    track_id: np.ndarray,
+    t: int,
+    rig: Any,
+    sizes: np.ndarray,
+    maps: list[np.ndarray | None],
+    pools: tuple[str, ...],
+    eps: float,
+    sums: dict[str, np.ndarray],
+    counts: dict[str, np.ndarray],
+    slot: np.ndarray,
+    sample_offsets: np.ndarray,
+    first_frame: np.ndarray,
+    samples: dict[str, np.ndarray],
+) -> None:
+    """Sample, pool and accumulate one chunk of one frame's points."""
+    n = len(track_id)
+    C = len(maps)
+    K = next(m.shape[2] for m in maps if m is not None) if any(m is not None for m in maps) else 0
+    if K == 0:
+        return
+    proj = rig.project(xyz)
+    in_image = np.asarray(proj.in_image, dtype=bool)  # (C, n)
+    only_visible = "average" not in pools
+    L = np.zeros((C, n, K), dtype=np.float32)
+    for c, L2D in enumerate(maps):
+        if L2D is None:
+            continue
+        use = in_image[c] & (V[:, c] > eps) if only_visible else in_image[c]
+        if use.all():
+            L[c] = sample_confidences(L2D, proj.pixels[c], tuple(sizes[c]))
+        elif use.any():  # unused rows sample to 0 as NaN pixels
+            px = np.where(use[:, None], proj.pixels[c], np.nan)  # (n, 2)
+            L[c] = sample_confidences(L2D, px, tuple(sizes[c]))
+    sel = slot[track_id]  # (n,)
+    has_sample = sel >= 0
+    rows = sample_offsets[sel[has_sample]] + (t - first_frame[track_id[has_sample]])
+    for p in pools:
+        pooled = pool_views(L, V, eps, p, in_image=in_image, camera_axis=0)  # (n, K)
+        ok = np.isfinite(pooled).all(axis=1)
+        sums[p][track_id[ok]] += pooled[ok]  # track ids are unique within a frame
+        counts[p][track_id[ok]] += 1
+        if rows.size:
+            samples[p][rows] = pooled[has_sample]

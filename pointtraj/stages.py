@@ -1,0 +1,462 @@
+"""Every pipeline stage as a library function on a work folder.
+
+Each function loads its inputs from the work folder (``data_specs/work_folder.md``), calls the
+stage's algorithm, writes its outputs atomically and returns them. The ``pointtraj`` commands
+and :func:`pointtraj.pipeline.run_pipeline` are thin callers of these.
+
+============== ======================================= ==========================================
+stage          reads                                   writes
+============== ======================================= ==========================================
+synth          (its config)                            the capture folder
+reconstruct    the capture                             work.toml, clouds/, state/,
+                                                       trajectories.npz
+ground_truth   the capture's gt/                       work.toml, trajectories.npz
+semantics      the capture's images, trajectories.npz  semantic_map.npz
+affinity       trajectories.npz                        affinity.npz
+label          semantic_map.npz, affinity.npz          labels.npz, labels.csv, clouds/ (label)
+============== ======================================= ==========================================
+
+Progress is reported through an optional ``progress(label, done, total)`` callable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .affinity import AffinityConfig
+from .errors import FileFormatError, ValidationError
+from .labeling import LabelingConfig
+from .semantics.semantic_map import SemanticsConfig
+from .workdir import WorkFolder, parse_frames
+
+if TYPE_CHECKING:
+    from .affinity import AffinityGraph
+    from .labelfile import TrajectoryLabels
+    from .reconstruct.track import ReconstructConfig
+    from .semantics.semantic_map import SemanticMap
+    from .synth.render import CaptureSummary
+    from .trajectories import Trajectories
+
+__all__ = [
+    "Progress",
+    "SynthConfig",
+    "SemanticsStageConfig",
+    "LabelStageConfig",
+    "synthesize",
+    "reconstruct_work",
+    "ground_truth_work",
+    "semantics_work",
+    "affinity_work",
+    "label_work",
+]
+
+logger = logging.getLogger(__name__)
+
+#: ``progress(label, done, total)``: ``done`` of ``total`` units of the step named ``label``.
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """A synthetic capture to render first (table ``[synth]`` of a pipeline).
+
+    Attributes
+    ----------
+    preset : str
+        Rig preset (``pointtraj synth --list``).
+    scene : str
+        Scene (``pointtraj synth --list``).
+    frames : int
+        Frames to render.
+    seed : int
+        Seeds textures, motion, ground-truth sampling and sensor noise.
+    points_per_part : int
+        Ground-truth surface points per labelled part.
+    image_format : {"jpg", "png"}
+    """
+
+    preset: str = "ring8"
+    scene: str = "dribble"
+    frames: int = 30
+    seed: int = 0
+    points_per_part: int = 300
+    image_format: str = "jpg"
+
+    def __post_init__(self) -> None:
+        from .synth.presets import PRESETS
+        from .synth.scenes import SCENES
+
+        if self.preset not in PRESETS:
+            raise ValidationError(
+                f"synth.preset: unknown {self.preset!r} (valid: {', '.join(sorted(PRESETS))})"
+            )
+        if self.scene not in SCENES:
+            raise ValidationError(
+                f"synth.scene: unknown {self.scene!r} (valid: {', '.join(sorted(SCENES))})"
+            )
+        if self.frames < 1 or self.points_per_part < 1:
+            raise ValidationError("synth.frames and synth.points_per_part must be positive")
+        if self.image_format not in ("jpg", "png"):
+            raise ValidationError(f"synth.image_format: 'jpg' or 'png', got {self.image_format!r}")
+
+
+@dataclass(frozen=True)
+class SemanticsStageConfig(SemanticsConfig):
+    """The semantic-map stage (table ``[semantics]``): the recogniser and the pooling settings.
+
+    Attributes
+    ----------
+    recognizer : str
+        Recogniser name (``pointtraj.semantics.recognizers.RECOGNIZERS``).
+    options : dict
+        Recogniser options (e.g. ``{noise = "high"}`` for ``simulated``). The simulated
+        recogniser gets the capture folder automatically.
+    poolings : tuple of str
+        As :class:`SemanticsConfig`, but every method by default, for the report.
+    """
+
+    recognizer: str = "simulated"
+    options: dict[str, Any] = field(default_factory=dict)
+    # The paper's view and average pooling first (the report compares them), then ours and the
+    # baselines.
+    poolings: tuple[str, ...] = ("view", "average", "view_soft", "max", "product")
+
+    def semantics_config(self) -> SemanticsConfig:
+        """The plain :class:`SemanticsConfig` part."""
+        names = {f.name for f in dataclasses.fields(SemanticsConfig)}
+        return SemanticsConfig(**{k: getattr(self, k) for k in names})
+
+
+@dataclass(frozen=True)
+class LabelStageConfig(LabelingConfig):
+    """The labelling stage (table ``[label]``): :class:`LabelingConfig` plus what to label.
+
+    Attributes
+    ----------
+    pooling : str
+        Which L3D of ``semantic_map.npz`` to label (its poolings; the paper's is ``view``).
+    write_clouds : bool
+        Rewrite ``clouds/<frame>.ply`` with a ``label`` attribute.
+    """
+
+    pooling: str = "view"
+    write_clouds: bool = True
+
+    def labeling_config(self) -> LabelingConfig:
+        """The plain :class:`LabelingConfig` part."""
+        names = {f.name for f in dataclasses.fields(LabelingConfig)}
+        return LabelingConfig(**{k: getattr(self, k) for k in names})
+
+
+def _report(progress: Progress | None, label: str, done: int, total: int) -> None:
+    if progress is not None:
+        progress(label, done, total)
+
+
+def synthesize(
+    capture: str | os.PathLike, config: SynthConfig, progress: Progress | None = None
+) -> CaptureSummary:
+    """Render (or resume rendering) a synthetic capture into ``capture``.
+
+    Returns
+    -------
+    CaptureSummary
+    """
+    from .synth.render import render_capture
+
+    done = [0]
+
+    def on_frame(t: int, rendered: bool) -> None:
+        done[0] += 1
+        _report(progress, "synth", done[0], config.frames)
+
+    return render_capture(
+        capture,
+        preset=config.preset,
+        scene=config.scene,
+        frames=config.frames,
+        seed=config.seed,
+        points_per_part=config.points_per_part,
+        image_format=config.image_format,
+        on_frame=on_frame,
+    )
+
+
+def reconstruct_work(
+    work: str | os.PathLike,
+    capture: str | os.PathLike,
+    config: ReconstructConfig | None = None,
+    frames: str | range | None = None,
+    *,
+    restart: bool = False,
+    progress: Progress | None = None,
+) -> Trajectories:
+    """Reconstruct the capture's trajectories into the work folder, resuming an interrupted run.
+
+    Parameters
+    ----------
+    work, capture : path-like
+    config : ReconstructConfig, optional
+    frames : str or range, optional
+        ``"A:B"`` or a range (default: all frames).
+    restart : bool
+        Discard a previous run's per-frame state instead of resuming it.
+    progress : Progress, optional
+
+    Returns
+    -------
+    Trajectories
+
+    Raises
+    ------
+    ValidationError
+        If the folder holds a run of another capture, frame range or parameter set and
+        ``restart`` is False.
+    """
+    from .reconstruct.track import ReconstructConfig, reconstruct_capture
+    from .session import Capture
+
+    cfg = config or ReconstructConfig()
+    wf = WorkFolder(work)
+    cap = Capture.open(capture)
+    rng = frames if isinstance(frames, range) else parse_frames(frames, int(cap.num_frames))
+    if wf.state.is_dir() and not restart:
+        wanted = {"reconstruct_run": None, "reconstruct": None} | wf.run_document(capture, rng, cfg)
+        if wf.run_identity() != wanted:
+            raise ValidationError(
+                f"{wf.path} holds a reconstruction of another capture, frame range or parameter "
+                "set; restart it or use another work folder"
+            )
+    if restart:
+        for sub in (wf.state, wf.clouds):
+            if sub.is_dir():
+                shutil.rmtree(sub)
+    wf.write_toml(capture, rng, cfg)
+    done = [0]
+
+    def on_frame(rec: Any) -> None:
+        done[0] += 1
+        _report(progress, "reconstruct", done[0], len(rng))
+
+    return reconstruct_capture(cap, wf.path, rng, cfg, on_frame=on_frame)
+
+
+def ground_truth_work(
+    work: str | os.PathLike, capture: str | os.PathLike, min_visible: int = 2
+) -> Trajectories:
+    """Write the synthetic capture's ground-truth trajectories as the work folder's store.
+
+    Parameters
+    ----------
+    work, capture : path-like
+    min_visible : int
+        Keep point-frames seen by at least this many cameras.
+
+    Returns
+    -------
+    Trajectories
+    """
+    from .synth.groundtruth import load_ground_truth
+
+    wf = WorkFolder(work)
+    wf.check_capture(capture)
+    trajectories = load_ground_truth(capture).to_trajectories(min_visible=min_visible)
+    wf.write_toml(capture)
+    trajectories.save(wf.trajectories)
+    logger.info("wrote %d ground-truth trajectories to %s", len(trajectories), wf.trajectories)
+    return trajectories
+
+
+def make_stage_recognizer(config: SemanticsStageConfig, capture: Any):
+    """The recogniser of a semantics stage for an open capture.
+
+    Its class set is the capture's ``labels.toml`` (or the default label set, with a warning).
+
+    Raises
+    ------
+    ValidationError
+        On an unknown recogniser or an option it does not take.
+    """
+    from .labelset import LabelSet
+    from .semantics.recognizers import make_recognizer
+
+    if capture.labels_path is not None:
+        labels = LabelSet.load(capture.labels_path)
+    else:
+        logger.warning("%s has no labels.toml; using the default label set", capture.path)
+        labels = LabelSet.default()
+    options = dict(config.options)
+    if config.recognizer == "simulated":
+        options.setdefault("capture", str(Path(capture.path).resolve()))
+    try:
+        return make_recognizer(config.recognizer, labels, **options)
+    except TypeError as exc:  # an option the recogniser does not take
+        raise ValidationError(f"recognizer {config.recognizer!r}: {exc}") from None
+
+
+def semantics_work(
+    work: str | os.PathLike,
+    config: SemanticsStageConfig | None = None,
+    capture: str | os.PathLike | None = None,
+    *,
+    progress: Progress | None = None,
+) -> SemanticMap:
+    """Build ``semantic_map.npz``: recognise every image, view-pool, average over time.
+
+    Parameters
+    ----------
+    work : path-like
+        Holds ``trajectories.npz``.
+    config : SemanticsStageConfig, optional
+    capture : path-like, optional
+        Default: the capture ``work.toml`` records.
+    progress : Progress, optional
+
+    Returns
+    -------
+    SemanticMap
+    """
+    from .semantics.semantic_map import build_semantic_map
+    from .session import Capture
+    from .trajectories import Trajectories
+
+    cfg = config or SemanticsStageConfig()
+    wf = WorkFolder(work)
+    cap = Capture.open(wf.require_capture(capture))
+    recognizer = make_stage_recognizer(cfg, cap)
+    trajectories = Trajectories.load(wf.trajectories)
+    smap = build_semantic_map(
+        cap,
+        trajectories,
+        recognizer,
+        config=cfg.semantics_config(),
+        progress=progress is not None,
+    )
+    if hasattr(smap, "recognizer_options"):
+        smap.recognizer_options = {
+            k: v for k, v in cfg.options.items() if isinstance(v, str | int | float | bool)
+        } | ({"capture": str(Path(cap.path).resolve())} if cfg.recognizer == "simulated" else {})
+    smap.save(wf.semantic_map)
+    return smap
+
+
+def affinity_work(
+    work: str | os.PathLike,
+    config: AffinityConfig | None = None,
+    *,
+    progress: Progress | None = None,
+) -> AffinityGraph:
+    """Compute ``affinity.npz`` from ``trajectories.npz`` (paper Section 4.2).
+
+    Returns
+    -------
+    AffinityGraph
+    """
+    from .affinity import compute_affinity, save_affinity
+    from .trajectories import Trajectories
+
+    wf = WorkFolder(work)
+    trajectories = Trajectories.load(wf.trajectories)
+    graph = compute_affinity(
+        trajectories,
+        config or AffinityConfig(),
+        progress=None if progress is None else lambda s, d, n: progress("affinity", d, n),
+    )
+    save_affinity(graph, wf.affinity)
+    return graph
+
+
+def label_work(
+    work: str | os.PathLike,
+    config: LabelStageConfig | None = None,
+    *,
+    progress: Progress | None = None,
+) -> TrajectoryLabels:
+    """Label every trajectory by alpha-expansion (paper Section 4.3).
+
+    Writes ``labels.npz`` and ``labels.csv`` and, with ``config.write_clouds``, rewrites the
+    existing ``clouds/<frame>.ply`` with a ``label`` attribute.
+
+    Returns
+    -------
+    TrajectoryLabels
+
+    Raises
+    ------
+    FileFormatError
+        If an input is missing, or the inputs disagree on the number of trajectories.
+    """
+    from .affinity import load_affinity
+    from .labelfile import TrajectoryLabels, save_labels
+    from .labeling import label_trajectories
+    from .semantics.semantic_map import SemanticMap
+    from .trajectories import Trajectories
+
+    cfg = config or LabelStageConfig()
+    wf = WorkFolder(work)
+    trajectories = Trajectories.load(wf.trajectories)
+    if not wf.semantic_map.is_file():
+        raise FileFormatError(wf.semantic_map, "no such file (run `pointtraj semantics` first)")
+    smap = SemanticMap.load(wf.semantic_map)
+    if cfg.pooling not in smap.L3D:
+        raise FileFormatError(
+            wf.semantic_map,
+            f"no L3D for pooling {cfg.pooling!r} (has: {', '.join(smap.poolings)})",
+        )
+    l3d = np.asarray(smap.L3D[cfg.pooling], np.float64)
+    if not wf.affinity.is_file():
+        raise FileFormatError(wf.affinity, "no such file (run `pointtraj affinity` first)")
+    graph = load_affinity(wf.affinity)
+    M = trajectories.num_trajectories
+    if l3d.shape[0] != M:
+        raise FileFormatError(
+            wf.semantic_map, f"has {l3d.shape[0]} trajectories, trajectories.npz {M}"
+        )
+    if graph.num_nodes != M:
+        raise FileFormatError(wf.affinity, f"has {graph.num_nodes} nodes, trajectories.npz {M}")
+    K = l3d.shape[1]
+    lab_cfg = cfg.labeling_config()
+    steps = [0]
+
+    def on_move(n: int = 1) -> None:
+        steps[0] += n
+        _report(progress, "label", steps[0], K * lab_cfg.max_sweeps)
+
+    res = label_trajectories(l3d, graph.row, graph.col, graph.weight, lab_cfg, progress=on_move)
+    s = l3d.sum(axis=1)
+    picked = l3d[np.arange(M), res.labels]
+    conf = np.where(s > 0, picked / np.where(s > 0, s, 1.0), 0.0)
+    result = TrajectoryLabels(
+        labels=res.labels,
+        confidence=conf,
+        argmax=l3d.argmax(axis=1),
+        class_names=smap.class_names,
+        energy=np.asarray(res.energy, np.float64),
+        pooling=cfg.pooling,
+        params=dataclasses.asdict(lab_cfg),
+    )
+    save_labels(result, wf.labels, trajectories.first_frame, trajectories.lengths)
+    if cfg.write_clouds and wf.clouds.is_dir():
+        frames = sorted(int(p.stem) for p in wf.clouds.glob("*.ply") if p.stem.isdigit())
+        frames = [t for t in frames if t < trajectories.num_frames]
+        for i, t in enumerate(frames):
+            trajectories.write_frame_ply(t, wf.cloud(t), labels=result.labels)
+            _report(progress, "label: clouds", i + 1, len(frames))
+    logger.info(
+        "labelled %d trajectories (%d changed from the argmax), energy %.6g -> %.6g in %.1f s",
+        M,
+        int((result.labels != result.argmax).sum()),
+        res.energy[0],
+        res.energy[-1],
+        res.seconds,
+    )
+    return result

@@ -1,0 +1,127 @@
+"""The ``pointtraj synth`` and ``pointtraj demo`` commands."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from ..errors import PointtrajError
+
+__all__ = ["synth"]
+
+logger = logging.getLogger(__name__)
+
+
+def _choices(kind: str) -> list[str]:
+    if kind == "preset":
+        from .presets import PRESETS
+
+        return sorted(PRESETS)
+    from .scenes import SCENES
+
+    return sorted(SCENES)
+
+
+def _summary_lines(summary) -> list[str]:
+    t = summary.timings
+    lines = [
+        f"capture   {summary.path}",
+        f"cameras   {summary.cameras}",
+        f"frames    {summary.frames} ({summary.rendered} rendered, {summary.skipped} already done)",
+        f"images    {summary.images}",
+        f"GT points {summary.gt_points}",
+    ]
+    if summary.rendered:
+        per = summary.rendered
+        lines.append(
+            f"time      {summary.seconds_per_frame:.2f} s/frame (ray casting "
+            f"{t.cast / per:.2f}, shading {t.shade / per:.2f}, writing "
+            f"{t.extra.get('write', 0.0) / per:.2f})"
+        )
+    return lines
+
+
+@click.command("synth")
+@click.option(
+    "--preset", default="tiny4", show_default=True, help="Camera rig preset (see --list)."
+)
+@click.option("--scene", default="dribble", show_default=True, help="Scene to render (see --list).")
+@click.option("--frames", type=int, default=10, show_default=True, help="Number of frames.")
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Capture folder to write (resumes if it holds the same capture).  [required]",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option(
+    "--points-per-part",
+    type=int,
+    default=300,
+    show_default=True,
+    help="Ground-truth surface points per labelled part.",
+)
+@click.option(
+    "--image-format",
+    type=click.Choice(["jpg", "png"]),
+    default="jpg",
+    show_default=True,
+    help="Frame image format.",
+)
+@click.option("--list", "list_", is_flag=True, help="List presets and scenes, then exit.")
+def synth(
+    preset: str,
+    scene: str,
+    frames: int,
+    out: Path | None,
+    seed: int,
+    points_per_part: int,
+    image_format: str,
+    list_: bool,
+) -> None:
+    """Render a synthetic multi-camera capture with ground-truth trajectories."""
+    from .presets import PRESETS
+    from .render import render_capture
+    from .scenes import SCENES
+
+    if list_:
+        for name, p in sorted(PRESETS.items()):
+            click.echo(f"preset {name:12s} {p.description}")
+        for name, s in sorted(SCENES.items()):
+            click.echo(f"scene  {name:12s} {s.description}")
+        return
+    if out is None:
+        raise click.UsageError("Missing option '--out'.")
+    if preset not in PRESETS:
+        raise click.BadParameter(
+            f"unknown preset {preset!r}; choose one of {', '.join(_choices('preset'))}",
+            param_hint="--preset",
+        )
+    if scene not in SCENES:
+        raise click.BadParameter(
+            f"unknown scene {scene!r}; choose one of {', '.join(_choices('scene'))}",
+            param_hint="--scene",
+        )
+    if frames < 1:
+        raise click.BadParameter(f"must be at least 1, got {frames}", param_hint="--frames")
+    if points_per_part < 1:
+        raise click.BadParameter(
+            f"must be at least 1, got {points_per_part}", param_hint="--points-per-part"
+        )
+    try:
+        with click.progressbar(length=frames, label=f"rendering {scene} ({preset})") as bar:
+            summary = render_capture(
+                out,
+                preset=preset,
+                scene=scene,
+                frames=frames,
+                seed=seed,
+                points_per_part=points_per_part,
+                image_format=image_format,
+                on_frame=lambda t, rendered: bar.update(1),
+            )
+    except PointtrajError as exc:
+        raise click.ClickException(str(exc)) from None
+    for line in _summary_lines(summary):
+        click.echo(line)

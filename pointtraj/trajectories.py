@@ -1,0 +1,458 @@
+"""The ragged trajectory store: M fragmented 3D trajectories with P point-frames in all.
+
+A CSR-like layout (see ``data_specs/trajectories.md``): trajectory ``m`` lives in frames
+``first_frame[m] .. first_frame[m] + length[m] - 1`` and its point-frames are rows
+``offsets[m] .. offsets[m + 1] - 1`` of the per-point-frame arrays. Visibility is quantised to
+uint8 (``V * 255``), so 10^6 trajectories x 30 frames x 69 cameras take about 2 GB.
+
+A frame-major index (built lazily, O(P)) reads frame t's points in O(N_t).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import zipfile
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .atomic import atomic_path, save_npz_atomic
+from .errors import FileFormatError, ValidationError, check_array
+
+if TYPE_CHECKING:  # pragma: no cover
+    import open3d as o3d
+
+__all__ = ["Trajectories", "FrameSlice", "quantize_visibility", "dequantize_visibility"]
+
+logger = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+
+
+def quantize_visibility(v: np.ndarray) -> np.ndarray:
+    """Visibility probabilities in [0, 1] (NaN means 0) to uint8 (``round(255 V)``)."""
+    v = np.nan_to_num(np.asarray(v, dtype=np.float32), nan=0.0)
+    return np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8)
+
+
+def dequantize_visibility(q: np.ndarray) -> np.ndarray:
+    """uint8 visibility back to float32 probabilities in [0, 1]."""
+    return np.asarray(q, dtype=np.float32) * np.float32(1.0 / 255.0)
+
+
+@dataclass(frozen=True)
+class FrameSlice:
+    """The point-frames of one frame.
+
+    Attributes
+    ----------
+    frame : int
+    track_id : (N,) int64 ndarray
+        Trajectory index of each point.
+    rows : (N,) int64 ndarray
+        Row of each point in the store's per-point-frame arrays.
+    xyz : (N, 3) float32 ndarray
+    visibility : (N, C) float32 ndarray
+        Dequantised visibility probabilities.
+    """
+
+    frame: int
+    track_id: np.ndarray
+    rows: np.ndarray
+    xyz: np.ndarray
+    visibility: np.ndarray
+
+
+@dataclass(eq=False)
+class Trajectories:
+    """Ragged store of M trajectories with P point-frames, seen by C cameras.
+
+    Parameters
+    ----------
+    first_frame : (M,) int64 ndarray
+        Frame where each trajectory emerges.
+    offsets : (M + 1,) int64 ndarray
+        Trajectory m's rows are ``offsets[m]:offsets[m + 1]``; ``offsets[0] == 0``.
+    xyz : (P, 3) float32 ndarray
+        World position per point-frame, metres.
+    visibility : (P, C) uint8 ndarray
+        Quantised visibility probability per camera (see :func:`quantize_visibility`).
+    reprojection_error : (P,) float32 ndarray
+        Mean reprojection error over the visible cameras, pixels (NaN if unknown).
+    color : (P, 3) uint8 ndarray
+        RGB colour per point-frame.
+    camera_names : list of str
+        Names of the C cameras, in the order of ``visibility``'s columns.
+    fps : float
+        Frame rate of the capture.
+    num_frames : int
+        Number of frames T of the capture (at least ``max(last_frame) + 1``).
+
+    Raises
+    ------
+    ValidationError
+        If the arrays are inconsistent.
+    """
+
+    first_frame: np.ndarray
+    offsets: np.ndarray
+    xyz: np.ndarray
+    visibility: np.ndarray
+    reprojection_error: np.ndarray
+    color: np.ndarray
+    camera_names: list[str] = field(default_factory=list)
+    fps: float = 30.0
+    num_frames: int = 0
+
+    def __post_init__(self) -> None:
+        self.first_frame = check_array("first_frame", self.first_frame, (None,), dtype=np.int64)
+        M = self.first_frame.shape[0]
+        self.offsets = check_array("offsets", self.offsets, (M + 1,), dtype=np.int64)
+        P = int(self.offsets[-1]) if M else 0
+        if self.offsets[0] != 0 or np.any(np.diff(self.offsets) < 1):
+            raise ValidationError(
+                "offsets must start at 0 and increase (every trajectory non-empty)"
+            )
+        if np.any(self.first_frame < 0):
+            raise ValidationError("first_frame must be non-negative")
+        C = len(self.camera_names)
+        self.xyz = check_array("xyz", self.xyz, (P, 3), dtype=np.float32)
+        self.visibility = check_array("visibility", self.visibility, (P, C), dtype=None)
+        if self.visibility.dtype != np.uint8:
+            raise ValidationError(
+                f"visibility must be quantised uint8 (use quantize_visibility), got {self.visibility.dtype}"
+            )
+        self.reprojection_error = check_array(
+            "reprojection_error", self.reprojection_error, (P,), dtype=np.float32
+        )
+        self.color = check_array("color", self.color, (P, 3), dtype=np.uint8)
+        last = int(self.last_frame.max()) + 1 if M else 0
+        self.num_frames = max(int(self.num_frames), last)
+        self.fps = float(self.fps)
+        self.camera_names = [str(n) for n in self.camera_names]
+
+    # -- basic properties --------------------------------------------------------------------
+    @property
+    def num_trajectories(self) -> int:
+        """M."""
+        return int(self.first_frame.shape[0])
+
+    def __len__(self) -> int:
+        return self.num_trajectories
+
+    @property
+    def num_point_frames(self) -> int:
+        """P, the sum of trajectory lengths."""
+        return int(self.offsets[-1])
+
+    @property
+    def num_cameras(self) -> int:
+        """C."""
+        return len(self.camera_names)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """(M,) int64 number of frames of each trajectory."""
+        return np.diff(self.offsets)
+
+    @property
+    def last_frame(self) -> np.ndarray:
+        """(M,) int64 last frame of each trajectory (inclusive)."""
+        return self.first_frame + self.lengths - 1
+
+    @cached_property
+    def row_track(self) -> np.ndarray:
+        """(P,) int64 trajectory index of each point-frame row."""
+        return np.repeat(np.arange(self.num_trajectories, dtype=np.int64), self.lengths)
+
+    @cached_property
+    def row_frame(self) -> np.ndarray:
+        """(P,) int64 frame of each point-frame row."""
+        local = np.arange(self.num_point_frames, dtype=np.int64) - self.offsets[self.row_track]
+        return self.first_frame[self.row_track] + local
+
+    @cached_property
+    def _frame_index(self) -> tuple[np.ndarray, np.ndarray]:
+        order = np.argsort(self.row_frame, kind="stable")  # (P,)
+        counts = np.bincount(self.row_frame, minlength=self.num_frames)
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        return order, starts
+
+    # -- access ------------------------------------------------------------------------------
+    def frame_rows(self, t: int) -> np.ndarray:
+        """(N_t,) rows of the point-frames alive at frame ``t``, in trajectory order."""
+        if not 0 <= t < self.num_frames:
+            raise ValidationError(f"frame {t} out of range [0, {self.num_frames})")
+        order, starts = self._frame_index
+        return order[starts[t] : starts[t + 1]]
+
+    def frame(self, t: int) -> FrameSlice:
+        """All points alive at frame ``t``."""
+        rows = self.frame_rows(t)
+        return FrameSlice(
+            frame=t,
+            track_id=self.row_track[rows],
+            rows=rows,
+            xyz=self.xyz[rows],
+            visibility=dequantize_visibility(self.visibility[rows]),
+        )
+
+    def track(self, m: int) -> np.ndarray:
+        """(L_m, 3) float32 positions of trajectory ``m``."""
+        return self.xyz[self.offsets[m] : self.offsets[m + 1]]
+
+    def dense_positions(self, tracks: np.ndarray | None = None) -> np.ndarray:
+        """Positions as a dense (M', T, 3) array with NaN outside each lifetime.
+
+        Parameters
+        ----------
+        tracks : (M',) int ndarray, optional
+            A subset of trajectories (default all). Memory is ``M' * T * 12`` bytes.
+        """
+        tracks = np.arange(self.num_trajectories) if tracks is None else np.asarray(tracks)
+        out = np.full((len(tracks), self.num_frames, 3), np.nan, dtype=np.float32)
+        rows = self.rows_of(tracks)
+        which = np.repeat(np.arange(len(tracks)), self.lengths[tracks])
+        out[which, self.row_frame[rows]] = self.xyz[rows]
+        return out
+
+    def rows_of(self, tracks: np.ndarray) -> np.ndarray:
+        """(sum of lengths,) int64 rows of trajectories ``tracks``, trajectory after trajectory."""
+        tracks = np.asarray(tracks, dtype=np.int64)
+        lengths = self.lengths[tracks]
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+        return np.repeat(self.offsets[tracks] - starts, lengths) + np.arange(int(lengths.sum()))
+
+    def subset(self, tracks: np.ndarray) -> Trajectories:
+        """A store holding only trajectories ``tracks`` (in that order)."""
+        tracks = np.asarray(tracks, dtype=np.int64)
+        lengths = self.lengths[tracks]
+        rows = self.rows_of(tracks)
+        return Trajectories(
+            first_frame=self.first_frame[tracks],
+            offsets=np.concatenate([[0], np.cumsum(lengths)]),
+            xyz=self.xyz[rows],
+            visibility=self.visibility[rows],
+            reprojection_error=self.reprojection_error[rows],
+            color=self.color[rows],
+            camera_names=list(self.camera_names),
+            fps=self.fps,
+            num_frames=self.num_frames,
+        )
+
+    # -- construction ------------------------------------------------------------------------
+    @classmethod
+    def from_dense(
+        cls,
+        xyz: np.ndarray,
+        visibility: np.ndarray | None = None,
+        *,
+        camera_names: list[str] | None = None,
+        color: np.ndarray | None = None,
+        reprojection_error: np.ndarray | None = None,
+        fps: float = 30.0,
+    ) -> Trajectories:
+        """Build from dense (M, T, 3) positions with NaN where a trajectory is absent.
+
+        Each row must be one contiguous run of finite positions (a gap would split it into two
+        trajectories; we refuse rather than guess).
+
+        Parameters
+        ----------
+        xyz : (M, T, 3) float ndarray
+        visibility : (M, T, C) float ndarray, optional
+            Probabilities in [0, 1]; default all zero with C = len(camera_names).
+        camera_names : list of str, optional
+        color : (M, T, 3) uint8 ndarray, optional
+        reprojection_error : (M, T) float ndarray, optional
+        fps : float
+
+        Returns
+        -------
+        Trajectories
+        """
+        xyz = check_array("xyz", xyz, (None, None, 3))
+        M, T, _ = xyz.shape
+        alive = np.all(np.isfinite(xyz), axis=2)  # (M, T)
+        if not np.all(alive.any(axis=1)):
+            raise ValidationError("from_dense: every trajectory needs at least one finite frame")
+        first = np.argmax(alive, axis=1)
+        lengths = alive.sum(axis=1)
+        last = T - 1 - np.argmax(alive[:, ::-1], axis=1)
+        if np.any(last - first + 1 != lengths):
+            raise ValidationError("from_dense: a trajectory has a gap; split it first")
+        names = list(camera_names or [])
+        if visibility is not None:
+            visibility = check_array("visibility", visibility, (M, T, None))
+            if not names:
+                names = [f"cam{i:02d}" for i in range(visibility.shape[2])]
+        C = len(names)
+        mask = alive.ravel()
+        vis = (
+            quantize_visibility(visibility.reshape(M * T, C)[mask])
+            if visibility is not None
+            else np.zeros((int(mask.sum()), C), np.uint8)
+        )
+        return cls(
+            first_frame=first,
+            offsets=np.concatenate([[0], np.cumsum(lengths)]),
+            xyz=xyz.reshape(M * T, 3)[mask],
+            visibility=vis,
+            reprojection_error=(
+                np.full(int(mask.sum()), np.nan)
+                if reprojection_error is None
+                else np.asarray(reprojection_error, np.float32).reshape(M * T)[mask]
+            ),
+            color=(
+                np.full((int(mask.sum()), 3), 200, np.uint8)
+                if color is None
+                else np.asarray(color, np.uint8).reshape(M * T, 3)[mask]
+            ),
+            camera_names=names,
+            fps=fps,
+            num_frames=T,
+        )
+
+    # -- Open3D views ------------------------------------------------------------------------
+    def to_pointcloud(
+        self, t: int, labels: np.ndarray | None = None, colors: np.ndarray | None = None
+    ) -> o3d.t.geometry.PointCloud:
+        """Frame ``t`` as an ``open3d.t.geometry.PointCloud``.
+
+        Attributes: ``positions`` (N, 3) float32, ``colors`` (N, 3) float32 in [0, 1],
+        ``visibility`` (N, C) float32, ``track_id`` (N, 1) int64, and ``label`` (N, 1) int32 when
+        ``labels`` (M,) is given.
+
+        Parameters
+        ----------
+        t : int
+        labels : (M,) int ndarray, optional
+            A label per trajectory.
+        colors : (M, 3) uint8 ndarray, optional
+            A colour per trajectory, overriding the per-point colours (e.g. label colours).
+        """
+        import open3d as o3d
+
+        fs = self.frame(t)
+        pcd = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(fs.xyz)))
+        col = self.color[fs.rows] if colors is None else np.asarray(colors, np.uint8)[fs.track_id]
+        pcd.point.colors = o3d.core.Tensor(col.astype(np.float32) / 255.0)
+        pcd.point.visibility = o3d.core.Tensor(np.ascontiguousarray(fs.visibility))
+        pcd.point.track_id = o3d.core.Tensor(fs.track_id.astype(np.int64)[:, None])
+        if labels is not None:
+            lab = np.asarray(labels, dtype=np.int32)
+            if lab.shape != (self.num_trajectories,):
+                raise ValidationError(
+                    f"labels: expected shape ({self.num_trajectories},), got {lab.shape}"
+                )
+            pcd.point.label = o3d.core.Tensor(lab[fs.track_id][:, None])
+        return pcd
+
+    def write_frame_ply(self, t: int, path: str | os.PathLike, **kwargs) -> None:
+        """Write frame ``t`` as a PLY with its attributes, atomically (see :meth:`to_pointcloud`)."""
+        import open3d as o3d
+
+        pcd = self.to_pointcloud(t, **kwargs)
+        # PLY has no 64-bit integers: Open3D refuses to write an Int64 attribute.
+        pcd.point.track_id = pcd.point.track_id.to(o3d.core.Dtype.Int32)
+        with atomic_path(path) as tmp:
+            if not o3d.t.io.write_point_cloud(str(tmp), pcd):
+                raise FileFormatError(path, "Open3D failed to write the point cloud")
+
+    # -- files -------------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> None:
+        """Write ``trajectories.npz`` atomically (format: ``data_specs/trajectories.md``)."""
+        save_npz_atomic(
+            path,
+            format_version=np.int64(FORMAT_VERSION),
+            first_frame=self.first_frame,
+            offsets=self.offsets,
+            xyz=self.xyz,
+            visibility=self.visibility,
+            reprojection_error=self.reprojection_error,
+            color=self.color,
+            camera_names=np.array(self.camera_names, dtype=str),
+            fps=np.float64(self.fps),
+            num_frames=np.int64(self.num_frames),
+        )
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Trajectories:
+        """Read a ``trajectories.npz`` written by :meth:`save`.
+
+        Raises
+        ------
+        FileFormatError
+            If the file is missing, not an npz, lacks a field or is inconsistent.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileFormatError(path, "no such file")
+        try:
+            # Open the file ourselves: np.load(path) leaks it when the zip is corrupt.
+            with open(path, "rb") as f:
+                z = np.load(f, allow_pickle=False)
+                if not isinstance(z, np.lib.npyio.NpzFile):
+                    raise ValueError("a single .npy array, not an .npz archive")
+                with z:
+                    data = {k: z[k] for k in z.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise FileFormatError(path, f"not a readable .npz file ({exc})") from None
+        need = [
+            "first_frame",
+            "offsets",
+            "xyz",
+            "visibility",
+            "reprojection_error",
+            "color",
+            "camera_names",
+        ]
+        missing = [k for k in need if k not in data]
+        if missing:
+            raise FileFormatError(path, f"missing field(s) {', '.join(missing)}")
+        version = int(data.get("format_version", FORMAT_VERSION))
+        if version > FORMAT_VERSION:
+            raise FileFormatError(
+                path,
+                f"format_version {version} is newer than this pointtraj reads ({FORMAT_VERSION})",
+            )
+        try:
+            return cls(
+                first_frame=data["first_frame"],
+                offsets=data["offsets"],
+                xyz=data["xyz"],
+                visibility=data["visibility"],
+                reprojection_error=data["reprojection_error"],
+                color=data["color"],
+                camera_names=[str(s) for s in data["camera_names"]],
+                fps=float(data.get("fps", 30.0)),
+                num_frames=int(data.get("num_frames", 0)),
+            )
+        except ValidationError as exc:
+            raise FileFormatError(path, str(exc)) from None
+
+    @staticmethod
+    def concatenate(parts: list[Trajectories]) -> Trajectories:
+        """Join stores with the same cameras into one (trajectory indices follow ``parts``' order)."""
+        if not parts:
+            raise ValidationError("concatenate needs at least one store")
+        names = parts[0].camera_names
+        for p in parts[1:]:
+            if p.camera_names != names:
+                raise ValidationError("concatenate: stores have different cameras")
+        lengths = np.concatenate([p.lengths for p in parts])
+        return Trajectories(
+            first_frame=np.concatenate([p.first_frame for p in parts]),
+            offsets=np.concatenate([[0], np.cumsum(lengths)]),
+            xyz=np.concatenate([p.xyz for p in parts]),
+            visibility=np.concatenate([p.visibility for p in parts]),
+            reprojection_error=np.concatenate([p.reprojection_error for p in parts]),
+            color=np.concatenate([p.color for p in parts]),
+            camera_names=list(names),
+            fps=parts[0].fps,
+            num_frames=max(p.num_frames for p in parts),
+        )

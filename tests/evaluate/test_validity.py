@@ -1,0 +1,90 @@
+"""Predictive validity on held-out cameras."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pointtraj.camera import Camera, CameraRig
+from pointtraj.evaluate.validity import (
+    CameraSamples,
+    camera_counts,
+    collect_camera_samples,
+    predictive_validity,
+)
+from pointtraj.trajectories import Trajectories, quantize_visibility
+
+
+def occluded_samples(C=12, M=300, T=4, K=3, occluded_fraction=0.6, seed=0) -> CameraSamples:
+    """Each trajectory has a true class in {0, 1}; occluded cameras (V = 0) confidently see class 2."""
+    rng = np.random.default_rng(seed)
+    truth = rng.integers(0, 2, M)
+    track = np.repeat(np.arange(M), T)
+    frame = np.tile(np.arange(T), M)
+    S = len(track)
+    occluded = rng.random((M, C)) < occluded_fraction
+    occ = occluded[track]  # (S, C)
+    L = np.zeros((S, C, K), np.float32)
+    L[np.arange(S)[:, None], np.arange(C)[None], np.where(occ, 2, truth[track][:, None])] = 0.9
+    V = np.where(occ, 0.0, 1.0).astype(np.float32)
+    observed = L.argmax(axis=2).astype(np.int16)
+    return CameraSamples(
+        track,
+        frame,
+        L.astype(np.float16),
+        V,
+        np.ones((S, C), bool),
+        observed,
+        [f"c{i}" for i in range(C)],
+    )
+
+
+def test_view_pooling_beats_average_under_occlusion():
+    s = occluded_samples()
+    res = predictive_validity(s, eps_e=0.1, counts=[1, 5, 11], draws=2)
+    # Held-out cameras are evaluated only where the point is visible there, so the truth is
+    # observed; with all 11 other cameras, view pooling is right exactly for the samples whose
+    # track some other camera sees (a track occluded in all of them gets no label).
+    held_out = np.unique(np.linspace(0, 11, 8).round().astype(int))
+    hits = average_hits = total = 0
+    for h in held_out:
+        evaluated = s.V[:, h] > 0.1
+        seen = np.delete(s.V, h, axis=1) > 0.1  # (S, 11)
+        hits += np.sum(evaluated & seen.any(axis=1))
+        # The unweighted mean is right only where the visible cameras outnumber the occluded.
+        average_hits += np.sum(evaluated & (seen.sum(axis=1) > 11 / 2))
+        total += np.sum(evaluated)
+    assert 0.99 < hits / total < 1.0  # the seed leaves a few tracks occluded everywhere else
+    assert res["view"][11] == pytest.approx(hits / total)
+    assert res["average"][11] == pytest.approx(average_hits / total)
+    assert res["average"][11] < 0.3  # the occluder's label wins the unweighted mean
+    assert res["view"][1] <= res["view"][5] <= res["view"][11]
+
+
+def test_camera_counts():
+    assert camera_counts(2) == [1]
+    assert camera_counts(12) == [1, 2, 5, 10, 11]
+
+
+def test_collect_camera_samples_uses_the_recognizer():
+    cams = [
+        Camera.look_at(f"c{i}", [2 * np.cos(a), 2 * np.sin(a), 1], [0, 0, 1], (64, 48), 60.0)
+        for i, a in enumerate(np.linspace(0, np.pi, 3))
+    ]
+    rig = CameraRig(cams)
+    rng = np.random.default_rng(0)
+    xyz = rng.normal(size=(50, 5, 3)) * 0.05 + [0, 0, 1]
+    vis = np.ones((50, 5, 3))
+    tr = Trajectories.from_dense(xyz, vis, camera_names=rig.names)
+    assert tr.visibility.dtype == np.uint8 and tr.visibility.max() == quantize_visibility(1.0)
+
+    def recognize(c, t):
+        L = np.zeros((12, 16, 2), np.float32)
+        L[..., c % 2] = 1.0  # camera c recognises class c % 2 everywhere
+        return L
+
+    s = collect_camera_samples(tr, rig, recognize, 2, max_tracks=20, frame_stride=2)
+    assert len(np.unique(s.track)) == 20 and set(np.unique(s.frame)) == {0, 2, 4}
+    assert s.L.shape == (len(s.track), 3, 2)
+    np.testing.assert_array_equal(s.observed[:, 1], 1)
+    np.testing.assert_array_equal(s.observed[:, 0], 0)

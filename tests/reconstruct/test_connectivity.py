@@ -1,0 +1,176 @@
+"""Tests of the camera connectivity graph (pointtraj.reconstruct.connectivity)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pointtraj.camera import Camera, CameraRig
+from pointtraj.errors import FileFormatError, ValidationError
+from pointtraj.reconstruct.connectivity import (
+    ConnectivityGraph,
+    build_connectivity,
+    confirm_connectivity,
+    estimate_capture_volume,
+)
+
+
+def make_ring(n: int, radius: float = 3.0, outward: tuple[int, ...] = ()) -> CameraRig:
+    """``n`` cameras on a ring looking at (0, 0, 1); those in ``outward`` look away."""
+    cams = []
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        c = np.array([radius * np.cos(a), radius * np.sin(a), 1.0])
+        target = 2 * c - [0, 0, 1.0] if i in outward else [0.0, 0.0, 1.0]
+        cams.append(Camera.look_at(f"c{i}", c, target, (640, 480), 500.0))
+    return CameraRig(cams)
+
+
+def test_build_connectivity_angles_and_degrees():
+    rig = make_ring(12)  # neighbours every 30 degrees
+    g = build_connectivity(rig, max_angle_deg=90.0)
+    assert g.camera_names == rig.names
+    assert g.edges.dtype == np.int64 and g.edges.shape == (g.num_edges, 2)
+    assert np.all(g.edges[:, 0] < g.edges[:, 1])
+    # Pairs up to 90 degrees apart: 3 steps either way, so degree 6 and 36 edges.
+    np.testing.assert_array_equal(g.degree(), np.full(12, 6))
+    assert g.num_edges == 36
+    assert np.all(g.angles_deg <= 90.0 + 1e-9)
+    np.testing.assert_allclose(np.sort(np.unique(np.round(g.angles_deg, 6))), [30, 60, 90])
+    assert g.overlap is not None and np.all(g.overlap >= 0.05)
+    # A tighter angle keeps only the nearest neighbours.
+    g30 = build_connectivity(rig, max_angle_deg=45.0)
+    assert g30.num_edges == 12
+    np.testing.assert_array_equal(g30.neighbors("c0"), [1, 11])
+    assert set(g30.pairs()) <= set(g.pairs())
+    A = g.adjacency()
+    assert A.shape == (12, 12) and np.array_equal(A, A.T) and not A.diagonal().any()
+
+
+def test_build_connectivity_shared_view_check():
+    rig = make_ring(8, outward=(0,))  # camera 0 looks away from the capture volume
+    g = build_connectivity(rig, max_angle_deg=180.0, min_overlap=0.05)
+    assert g.degree()[0] == 0
+    assert "isolated cameras" in g.summary() and "c0" in g.summary()
+    # Without the overlap check the angle alone would connect camera 0 to its neighbours.
+    g0 = build_connectivity(rig, max_angle_deg=180.0, min_overlap=0.0)
+    assert g0.degree()[0] > 0
+    # An explicit volume outside every view connects nothing.
+    far = np.array([[50.0, 50.0, 50.0], [51.0, 51.0, 51.0]])
+    assert build_connectivity(rig, volume=far).num_edges == 0
+
+
+def test_estimate_capture_volume_ring():
+    box = estimate_capture_volume(make_ring(8, radius=3.0))
+    np.testing.assert_allclose(box.mean(axis=0), [0.0, 0.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(box[1] - box[0], [3.0, 3.0, 3.0], atol=1e-9)
+
+
+def test_estimate_capture_volume_parallel_axes():
+    """A row of cameras looking the same way: the volume lies in front of the row."""
+    cams = [
+        Camera.look_at(f"p{i}", [0.5 * i, 0.0, 1.0], [0.5 * i, 5.0, 1.0], (640, 480), 500.0)
+        for i in range(4)
+    ]
+    rig = CameraRig(cams)
+    box = estimate_capture_volume(rig)
+    center = box.mean(axis=0)
+    assert center[1] > 0.5 and np.all(box[1] > box[0])
+    g = build_connectivity(rig)
+    assert g.num_edges == 6 and np.allclose(g.angles_deg, 0.0, atol=1e-4)
+
+
+def test_build_connectivity_bad_arguments():
+    rig = make_ring(4)
+    with pytest.raises(ValueError, match="max_angle_deg"):
+        build_connectivity(rig, max_angle_deg=200)
+    with pytest.raises(ValueError, match="min_overlap"):
+        build_connectivity(rig, min_overlap=1.5)
+    with pytest.raises(ValueError, match="volume"):
+        build_connectivity(rig, volume=np.array([[1.0, 1, 1], [0, 0, 0]]))
+    with pytest.raises(ValueError, match="edges"):
+        ConnectivityGraph(["a", "b"], np.array([[1, 0]]), np.array([10.0]))
+
+
+def test_confirm_connectivity_edge_and_matrix_counts():
+    g = build_connectivity(make_ring(8))
+    E = g.num_edges
+    counts = np.arange(E) * 10
+    kept = confirm_connectivity(g, counts, min_matches=50)
+    assert kept.num_edges == int(np.sum(counts >= 50))
+    assert np.all(kept.match_counts >= 50)
+    assert kept.overlap.shape == (kept.num_edges,)
+    # The same counts as a camera matrix, filled in the lower triangle only.
+    M = np.zeros((8, 8), int)
+    M[g.edges[:, 1], g.edges[:, 0]] = counts
+    kept2 = confirm_connectivity(g, M, min_matches=50)
+    np.testing.assert_array_equal(kept2.edges, kept.edges)
+    np.testing.assert_array_equal(kept2.match_counts, kept.match_counts)
+    with pytest.raises(ValidationError, match="counts"):
+        confirm_connectivity(g, np.zeros(E + 1), 1)
+    with pytest.raises(ValidationError, match=">= 0"):
+        confirm_connectivity(g, -np.ones(E), 1)
+    assert "confirming matches" in kept.summary()
+
+
+def test_save_load_round_trip(tmp_path):
+    g = build_connectivity(make_ring(6))
+    g = confirm_connectivity(g, np.full(g.num_edges, 7), min_matches=1)
+    path = tmp_path / "sub" / "connectivity.json"
+    g.save(path)
+    data = json.loads(path.read_text())
+    assert data["format"] == "pointtraj-connectivity" and data["version"] == 1
+    h = ConnectivityGraph.load(path)
+    assert h.camera_names == g.camera_names
+    for name in ("edges", "angles_deg", "match_counts", "overlap", "centers", "directions"):
+        np.testing.assert_array_equal(getattr(h, name), getattr(g, name))
+    assert h.summary() == g.summary()
+
+
+def test_load_errors(tmp_path):
+    with pytest.raises(FileFormatError, match="not found"):
+        ConnectivityGraph.load(tmp_path / "missing.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(FileFormatError, match="bad.json: not a readable JSON"):
+        ConnectivityGraph.load(bad)
+    bad.write_text(json.dumps({"format": "something-else"}))
+    with pytest.raises(FileFormatError, match="format"):
+        ConnectivityGraph.load(bad)
+    good = build_connectivity(make_ring(4)).to_dict()
+    del good["edges"]
+    bad.write_text(json.dumps(good))
+    with pytest.raises(FileFormatError, match="missing field 'edges'"):
+        ConnectivityGraph.load(bad)
+    good = build_connectivity(make_ring(4)).to_dict()
+    good["edges"] = [[0, 9]]
+    good["angles_deg"] = [1.0]
+    bad.write_text(json.dumps(good))
+    with pytest.raises(FileFormatError, match="edges"):
+        ConnectivityGraph.load(bad)
+
+
+def test_plot_writes_png(tmp_path):
+    import matplotlib.image
+
+    g = build_connectivity(make_ring(8))
+    out = tmp_path / "graph.png"
+    g.plot(out)
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    img = matplotlib.image.imread(out)
+    assert img.ndim == 3 and img.shape[0] > 100
+    bare = ConnectivityGraph(g.camera_names, g.edges, g.angles_deg)
+    with pytest.raises(ValidationError, match="pass the rig"):
+        bare.plot(tmp_path / "x.png")
+    bare.plot(tmp_path / "y.png", rig=make_ring(8))
+    assert (tmp_path / "y.png").exists()
+
+
+def test_summary_text():
+    g = build_connectivity(make_ring(12))
+    text = g.summary()
+    assert "12 cameras, 36 edges" in text
+    assert "degree min 6, mean 6.0, max 6" in text
+    assert len(text.splitlines()) == 12 + 4

@@ -1,0 +1,220 @@
+"""Dense matching: ORB grid features, GMS + epipolar filtering, multi-view tracks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pointtraj.camera import Camera, CameraRig
+from pointtraj.errors import ValidationError
+from pointtraj.reconstruct.matching import (
+    Features,
+    MatchingConfig,
+    MultiViewTracks,
+    build_tracks,
+    detect_features,
+    epipolar_distances,
+    match_frame,
+    match_pair,
+    resolve_ambiguous,
+)
+
+
+def make_texture(rng: np.random.Generator, size: int = 768) -> np.ndarray:
+    """(size, size, 3) uint8 band-limited random texture (good for ORB and optical flow)."""
+    import cv2
+
+    t = cv2.resize(rng.random((size // 8, size // 8)), (size, size), interpolation=cv2.INTER_CUBIC)
+    t += 0.5 * cv2.resize(rng.random((size // 2, size // 2)), (size, size))
+    t = (255 * (t - t.min()) / (t.max() - t.min())).astype(np.uint8)
+    return np.stack([t, np.roll(t, 7, 0), np.roll(t, 13, 1)], axis=2)
+
+
+def render_plane(cam: Camera, texture: np.ndarray, origin, extent: float) -> np.ndarray:
+    """Image of the textured square ``z = origin[2]``, ``[ox, ox + extent] x [oy, oy + extent]``."""
+    import cv2
+
+    s = extent / texture.shape[1]
+    A = np.array([[s, 0, origin[0]], [0, s, origin[1]], [0, 0, 1.0]])  # texture px -> plane
+    t = -cam.R @ cam.C
+    M = cam.K @ np.column_stack([cam.R[:, 0], cam.R[:, 1], cam.R[:, 2] * origin[2] + t])
+    return cv2.warpPerspective(texture, M @ A, cam.size, flags=cv2.INTER_LINEAR)
+
+
+def plane_rig(n: int = 3, w: int = 480, h: int = 360, dist=None) -> CameraRig:
+    cams = []
+    for i in range(n):
+        a = np.deg2rad(-15 + 30 * i / max(n - 1, 1))
+        C = [2.0 * np.sin(a), -0.3, 2.0 * np.cos(a)]
+        cams.append(Camera.look_at(f"c{i}", C, [0, 0, 0], (w, h), 400.0, up=[0, -1, 0], dist=dist))
+    return CameraRig(cams)
+
+
+def ray_plane_points(rig: CameraRig, obs: np.ndarray, z: float = 0.0) -> np.ndarray:
+    """(C, N, 3) intersections of the observations' rays with the plane ``z``."""
+    o, d = rig.rays(np.nan_to_num(obs))
+    lam = (z - o[..., 2]) / d[..., 2]
+    X = o + lam[..., None] * d
+    X[np.isnan(obs[..., 0])] = np.nan
+    return X
+
+
+@pytest.fixture(scope="module")
+def plane_scene():
+    rng = np.random.default_rng(3)
+    rig = plane_rig(3)
+    tex = make_texture(rng)
+    images = [render_plane(c, tex, (-1.0, -1.0, 0.0), 2.0) for c in rig]
+    return rig, images
+
+
+def test_detect_features_spread_and_shapes(plane_scene):
+    rig, images = plane_scene
+    cfg = MatchingConfig(num_features=1200, grid_cells=(6, 4))
+    f = detect_features(images[0], cfg)
+    assert isinstance(f, Features)
+    assert 0.5 * cfg.num_features < len(f) <= cfg.num_features + 24
+    assert f.pixels.shape == (len(f), 2) and f.descriptors.shape == (len(f), 32)
+    assert f.descriptors.dtype == np.uint8 and f.size == (480, 360)
+    # grid spreading: no cell holds more than its share
+    cx = (f.pixels[:, 0] * 6 / 480).astype(int)
+    cy = (f.pixels[:, 1] * 4 / 360).astype(int)
+    assert np.bincount(cy * 6 + cx).max() <= int(np.ceil(1200 / 24))
+    # blank image: no features, right shapes
+    blank = detect_features(np.zeros((100, 120, 3), np.uint8), cfg)
+    assert len(blank) == 0 and blank.descriptors.shape == (0, 32)
+
+
+def test_detect_features_rejects_bad_images():
+    with pytest.raises(ValidationError, match="uint8"):
+        detect_features(np.zeros((10, 10, 3), np.float32))
+    with pytest.raises(ValidationError, match="image"):
+        detect_features(np.zeros((10, 10, 4), np.uint8))
+
+
+def test_config_rejects_bad_values():
+    with pytest.raises(ValidationError, match="num_features"):
+        MatchingConfig(num_features=1)
+    with pytest.raises(ValidationError, match="grid_cells"):
+        MatchingConfig(grid_cells=(0, 3))
+
+
+def test_epipolar_distance_zero_for_true_correspondences_with_distortion():
+    rng = np.random.default_rng(0)
+    rig = plane_rig(2, dist=[-0.2, 0.05, 0.001, -0.001, 0.0])
+    X = rng.uniform(-0.5, 0.5, (50, 3))
+    pix = rig.project(X).pixels
+    d = epipolar_distances(rig, 0, 1, pix[0], pix[1])
+    assert d.shape == (50,)
+    np.testing.assert_allclose(d, 0.0, atol=1e-6)
+    # moving the point in image 1 along y (across the mostly horizontal epipolar lines)
+    moved = pix[1] + [0.0, 5.0]
+    assert np.all(epipolar_distances(rig, 0, 1, pix[0], moved) > 2.0)
+    # symmetric in the camera order
+    np.testing.assert_allclose(
+        epipolar_distances(rig, 1, 0, moved, pix[0]),
+        epipolar_distances(rig, 0, 1, pix[0], moved),
+        rtol=1e-9,
+    )
+
+
+def test_match_pair_is_geometrically_correct(plane_scene):
+    rig, images = plane_scene
+    cfg = MatchingConfig(num_features=2000)
+    fa, fb = detect_features(images[0], cfg), detect_features(images[1], cfg)
+    pairs = match_pair(rig, 0, 1, fa, fb, cfg)
+    assert pairs.ndim == 2 and pairs.shape[1] == 2 and len(pairs) > 300
+    obs = np.full((3, len(pairs), 2), np.nan)
+    obs[0], obs[1] = fa.pixels[pairs[:, 0]], fb.pixels[pairs[:, 1]]
+    X = ray_plane_points(rig, obs)
+    gap = np.linalg.norm(X[0] - X[1], axis=1)
+    # 1 px is about 5 mm on the plane here; nearly all matches land on the same plane point
+    assert np.median(gap) < 0.005
+    assert np.mean(gap < 0.02) > 0.97
+
+
+def test_build_tracks_chains_and_flags_ambiguity():
+    feats = [
+        Features(
+            np.array([[0, 0], [1, 1], [2, 2]], np.float32), np.zeros((3, 32), np.uint8), [], (9, 9)
+        )
+        for _ in range(3)
+    ]
+    edges = np.array([[0, 1], [1, 2], [0, 2]])
+    matches = [
+        np.array([[0, 0], [1, 1]]),  # 0-1
+        np.array([[0, 0], [1, 1]]),  # 1-2: chains kp 0 and kp 1 through all three cameras
+        np.array([[2, 2]]),  # 0-2: kp 2 of cameras 0 and 2 only
+    ]
+    tr = build_tracks(3, feats, edges, matches)
+    assert isinstance(tr, MultiViewTracks)
+    assert tr.num_tracks == 3 and tr.observations.shape == (3, 3, 2)
+    n_cams = np.sum(np.isfinite(tr.observations[..., 0]), axis=0)
+    assert sorted(n_cams.tolist()) == [2, 3, 3]
+    assert not tr.ambiguous.any()
+    # a second keypoint of camera 1 (kp 2) joining kp 0's track makes that track ambiguous
+    matches.append(np.array([[0, 2]]))  # another 0-1 match: cam 0 kp 0 <-> cam 1 kp 2
+    tr = build_tracks(3, feats, np.vstack([edges, [[0, 1]]]), matches)
+    assert tr.ambiguous.sum() == 1
+    t_amb = int(np.flatnonzero(tr.ambiguous)[0])
+    # the chosen observation of camera 1 is its best-connected keypoint (kp 0)
+    np.testing.assert_array_equal(tr.observations[1, t_amb], [0, 0])
+
+
+def test_build_tracks_empty_and_validation():
+    feats = [Features(np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8), [], (9, 9))] * 2
+    tr = build_tracks(2, feats, np.zeros((0, 2), np.int64), [])
+    assert tr.num_tracks == 0 and tr.observations.shape == (2, 0, 2)
+    with pytest.raises(ValidationError, match="features"):
+        build_tracks(3, feats, np.zeros((0, 2), np.int64), [])
+
+
+def test_resolve_ambiguous_keeps_the_consistent_keypoint():
+    rig = plane_rig(3)
+    X = np.array([[0.1, 0.2, 0.0], [-0.2, 0.1, 0.1]])
+    pix = rig.project(X).pixels  # (3, 2, 2)
+    # track 0 has two keypoints in camera 2: the true one and one 30 px off (better connected)
+    node_cam = np.array([0, 1, 2, 2, 0, 1])
+    node_track = np.array([0, 0, 0, 0, 1, 1])
+    node_pix = np.array(
+        [pix[0, 0], pix[1, 0], pix[2, 0] + [30, 0], pix[2, 0], pix[0, 1], pix[1, 1]]
+    )
+    obs = np.full((3, 2, 2), np.nan)
+    obs[:, 0] = [pix[0, 0], pix[1, 0], pix[2, 0] + [30, 0]]
+    obs[:2, 1] = pix[:2, 1]
+    tracks = MultiViewTracks(
+        node_cam, node_track, node_pix, np.array([1, 1, 3, 1, 1, 1]), obs, np.array([True, False])
+    )
+    fixed = resolve_ambiguous(rig, tracks, X)
+    np.testing.assert_allclose(fixed[2, 0], pix[2, 0])
+    np.testing.assert_array_equal(fixed[:, 1], obs[:, 1])
+    # a failed (NaN) triangulation keeps the first choice
+    kept = resolve_ambiguous(rig, tracks, np.array([[np.nan] * 3, X[1]]))
+    np.testing.assert_array_equal(kept[2, 0], obs[2, 0])
+
+
+def test_match_frame_observations_triangulate_onto_the_plane(plane_scene):
+    from pointtraj.reconstruct.triangulate import TriangulationConfig, triangulate_ransac
+
+    rig, images = plane_scene
+    cfg = MatchingConfig(num_features=2000)
+    tracks = match_frame(rig, images, np.array([[0, 1], [1, 2], [0, 2]]), cfg)
+    assert tracks.observations.shape[0] == 3 and tracks.num_tracks > 500
+    assert np.all(np.sum(np.isfinite(tracks.observations[..., 0]), axis=0) >= 2)
+    tri = triangulate_ransac(rig, tracks.observations, TriangulationConfig())
+    ok = tri.valid
+    assert ok.mean() > 0.9
+    # the plane is z = 0; 1 px of disparity is about 1 cm of depth at this scale
+    assert np.median(np.abs(tri.points[ok, 2])) < 0.01
+    inside = np.all(np.abs(tri.points[ok, :2]) <= 1.01, axis=1)
+    assert inside.mean() > 0.99
+
+
+def test_match_frame_validates_inputs(plane_scene):
+    rig, images = plane_scene
+    with pytest.raises(ValidationError, match="expected 3 images"):
+        match_frame(rig, images[:2], np.array([[0, 1]]))
+    with pytest.raises(ValidationError, match="edges"):
+        match_frame(rig, images, np.array([[0, 5]]))
+    with pytest.raises(ValidationError, match="the rig says 480x360"):
+        match_frame(rig, [images[0][:100]] + images[1:], np.array([[0, 1]]))

@@ -1,0 +1,295 @@
+"""Tests of pointtraj.semantics.semantic_map: streaming L3D construction, file format."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pointtraj.camera import Camera, CameraRig
+from pointtraj.errors import FileFormatError, ValidationError
+from pointtraj.semantics.pooling import pool_views
+from pointtraj.semantics.recognizers.base import ImageContext, Recognizer
+from pointtraj.semantics.recognizers.precomputed import (
+    PrecomputedRecognizer,
+    save_confidence_map,
+)
+from pointtraj.semantics.sampling import sample_confidences
+from pointtraj.semantics.semantic_map import (
+    SemanticMap,
+    SemanticsConfig,
+    build_semantic_map,
+    normalized_correlation,
+)
+from pointtraj.trajectories import Trajectories
+
+W, H, DS = 160, 128, 4
+CLASSES = ("left", "right", "other")
+
+
+def make_scene(seed=0, M=240, T=7):
+    """Points on two spheres (class 0 and 1) drifting in x, seen by a ring of 8 cameras.
+
+    Visibility is 1 where the sphere's surface faces the camera and the point is in the image.
+    Some trajectories are fragments (start late or end early); the last frame has no points.
+    """
+    rng = np.random.default_rng(seed)
+    cams = []
+    for i, a in enumerate(np.linspace(0, 2 * np.pi, 8, endpoint=False)):
+        centre = [3.0 * np.cos(a), 3.0 * np.sin(a), 1.2]
+        cams.append(Camera.look_at(f"cam{i}", centre, [0, 0, 1.0], (W, H), 140.0))
+    rig = CameraRig(cams)
+    label = np.arange(M) % 2
+    normal = rng.normal(size=(M, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    centres = np.where(label[:, None] == 0, [-0.45, 0.0, 1.0], [0.45, 0.0, 1.0])
+    xyz = np.full((M, T, 3), np.nan)
+    vis = np.zeros((M, T, len(cams)))
+    first = rng.integers(0, 3, M)
+    last = rng.integers(3, T - 1, M)
+    for t in range(T):
+        X = centres + 0.3 * normal + [0.03 * t, 0, 0]  # (M, 3)
+        alive = (first <= t) & (t <= last)
+        proj = rig.project(X)
+        facing = np.einsum("mi,cmi->cm", normal, rig.C[:, None] - X[None]) > 0  # (C, M)
+        v = (facing & proj.in_image).T.astype(float)
+        xyz[alive, t] = X[alive]
+        vis[alive, t] = v[alive]
+    traj = Trajectories.from_dense(xyz, vis, camera_names=rig.names, fps=30.0)
+    return rig, traj, label
+
+
+class RasterRecognizer(Recognizer):
+    """Paints each visible point's class into a coarse map (a real, if simple, recogniser).
+
+    Cameras in ``swap`` report class 0 as 1 and 1 as 0 (a confident wrong view).
+    """
+
+    name = "raster"
+
+    def __init__(self, rig, traj, label, swap=()):
+        self.rig, self.traj, self.label, self.swap = rig, traj, label, set(swap)
+        self.class_names = CLASSES
+        self.calls = []
+
+    def recognize(self, image, context=None):
+        import cv2
+
+        self.calls.append((context.camera, context.frame))
+        c = self.rig.index(context.camera)
+        fs = self.traj.frame(context.frame)
+        lab = self.label[fs.track_id]
+        if c in self.swap:
+            lab = 1 - lab
+        seen = fs.visibility[:, c] > 0.5
+        px = self.rig.project(fs.xyz[seen]).pixels[c]
+        h, w = H // DS, W // DS
+        cell = (np.clip(px[:, 1] // DS, 0, h - 1) * w + np.clip(px[:, 0] // DS, 0, w - 1)).astype(
+            int
+        )
+        counts = np.zeros((h * w, len(CLASSES)), np.float32)
+        np.add.at(counts, (cell, lab[seen]), 1.0)
+        frac = counts / np.maximum(counts.sum(1, keepdims=True), 1)
+        frac = cv2.dilate(frac.reshape(h, w, -1), np.ones((3, 3), np.uint8))
+        frac[..., 2] = 0.05
+        return frac.astype(np.float16).astype(np.float32)  # exactly representable in files
+
+
+class FakeCapture:
+    """The part of ``pointtraj.session.Capture`` the semantic map uses, with blank images."""
+
+    def __init__(self, rig):
+        self.rig = rig
+        self.path = None
+        self.reads = 0
+
+    def read(self, camera, frame):
+        self.reads += 1
+        return np.zeros((H, W, 3), np.uint8)
+
+
+def brute_force(rig, traj, recognizer, pooling, eps=0.1):
+    """L3D and per-point-frame pooled rows, computed point-frame by point-frame."""
+    M, K = len(traj), len(CLASSES)
+    rows = np.full((traj.num_point_frames, K), np.nan, np.float32)
+    for t in range(traj.num_frames):
+        fs = traj.frame(t)
+        if len(fs.rows) == 0:
+            continue
+        proj = rig.project(fs.xyz)
+        L = np.stack(
+            [
+                sample_confidences(
+                    recognizer.recognize(None, ImageContext(name, t)),
+                    np.where(proj.in_image[c][:, None], proj.pixels[c], np.nan),
+                    (W, H),
+                )
+                for c, name in enumerate(rig.names)
+            ]
+        )
+        rows[fs.rows] = pool_views(L, fs.visibility, eps, pooling, in_image=proj.in_image)
+    L3D = np.zeros((M, K), np.float32)
+    count = np.zeros(M, int)
+    for m in range(M):
+        r = rows[traj.offsets[m] : traj.offsets[m + 1]]
+        r = r[np.isfinite(r).all(1)]
+        count[m] = len(r)
+        if len(r):
+            L3D[m] = r.mean(0)
+    return L3D, count, rows
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene()
+
+
+def test_streaming_map_equals_brute_force(scene):
+    rig, traj, label = scene
+    rec = RasterRecognizer(rig, traj, label)
+    cap = FakeCapture(rig)
+    smap = build_semantic_map(cap, traj, rec, config=SemanticsConfig(chunk_size=37))
+    assert smap.class_names == CLASSES and smap.poolings == ("view", "average")
+    assert cap.reads == len(rec.calls)  # one image read per recognition
+    frames_with_points = [t for t in range(traj.num_frames) if len(traj.frame_rows(t))]
+    assert sorted(rec.calls) == sorted((n, t) for n in rig.names for t in frames_with_points)
+    for p in ("view", "average"):
+        L3D, count, rows = brute_force(rig, traj, RasterRecognizer(rig, traj, label), p)
+        np.testing.assert_array_equal(smap.count[p], count)
+        np.testing.assert_allclose(smap.L3D[p], L3D, atol=1e-5)
+        # Every trajectory's per-frame samples are kept (they fit the budget).
+        np.testing.assert_array_equal(smap.sample_tracks, np.arange(len(traj)))
+        np.testing.assert_allclose(smap.samples[p], rows, atol=1e-6)
+    seen = smap.count["view"] > 0
+    assert seen.mean() > 0.9
+    np.testing.assert_array_equal(smap.argmax_labels("view")[seen], label[seen])
+    assert (smap.argmax_labels("view")[~seen] == -1).all()
+
+
+def test_view_pooling_survives_confident_wrong_views(scene):
+    rig, traj, label = scene
+    rec = RasterRecognizer(rig, traj, label, swap=(0,))
+    smap = build_semantic_map(FakeCapture(rig), traj, rec)
+    seen = smap.count["view"] > 0
+    view_acc = np.mean(smap.argmax_labels("view")[seen] == label[seen])
+    assert view_acc > 0.98  # only ties between two visible cameras can go wrong
+
+
+def test_chunking_and_view_only_do_not_change_the_result(scene):
+    rig, traj, label = scene
+    a = build_semantic_map(FakeCapture(rig), traj, RasterRecognizer(rig, traj, label))
+    b = build_semantic_map(
+        FakeCapture(rig),
+        traj,
+        RasterRecognizer(rig, traj, label),
+        poolings=("view",),
+        config=SemanticsConfig(chunk_size=5),
+    )
+    np.testing.assert_allclose(b.L3D["view"], a.L3D["view"], atol=1e-6)
+    np.testing.assert_array_equal(b.count["view"], a.count["view"])
+
+
+def test_sample_budget_limits_sampled_trajectories(scene):
+    rig, traj, label = scene
+    budget_mb = 40 * 4 * len(CLASSES) * 2 / 2**20  # room for about 40 point-frames
+    smap = build_semantic_map(
+        FakeCapture(rig),
+        traj,
+        RasterRecognizer(rig, traj, label),
+        config=SemanticsConfig(sample_budget_mb=budget_mb, seed=3),
+    )
+    S = len(smap.sample_tracks)
+    assert 0 < S < len(traj) and smap.sample_offsets[-1] <= 40
+    assert np.all(np.diff(smap.sample_tracks) > 0)
+    np.testing.assert_array_equal(np.diff(smap.sample_offsets), traj.lengths[smap.sample_tracks])
+    np.testing.assert_array_equal(smap.sample_first_frame, traj.first_frame[smap.sample_tracks])
+
+
+def test_temporal_consistency_and_nc(scene):
+    rig, traj, label = scene
+    smap = build_semantic_map(FakeCapture(rig), traj, RasterRecognizer(rig, traj, label))
+    mean, std, n = smap.temporal_consistency(2, "view")
+    assert n > 50 and mean > 0.9
+    mean, _, n = smap.temporal_consistency(100, "view")
+    assert n == 0 and np.isnan(mean)
+    nc = normalized_correlation(
+        np.array([[1.0, 2, 3], [1, 1, 1]]), np.array([[2.0, 4, 6], [1, 2, 3]])
+    )
+    assert nc[0] == pytest.approx(1.0) and np.isnan(nc[1])
+
+
+def test_save_load_round_trip(scene, tmp_path):
+    rig, traj, label = scene
+    smap = build_semantic_map(FakeCapture(rig), traj, RasterRecognizer(rig, traj, label))
+    path = tmp_path / "semantic_map.npz"
+    smap.save(path)
+    back = SemanticMap.load(path)
+    assert back.class_names == smap.class_names and back.poolings == smap.poolings
+    assert back.recognizer == "raster" and back.eps_e == smap.eps_e and back.fps == 30.0
+    for p in smap.poolings:
+        np.testing.assert_array_equal(back.L3D[p], smap.L3D[p])
+        np.testing.assert_array_equal(back.count[p], smap.count[p])
+        np.testing.assert_array_equal(back.samples[p], smap.samples[p])
+    np.testing.assert_array_equal(back.sample_offsets, smap.sample_offsets)
+    np.testing.assert_array_equal(back.confidences, smap.L3D["view"])
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files if k != "L3D_view"}
+    np.savez(tmp_path / "broken.npz", **arrays)
+    with pytest.raises(FileFormatError, match="missing array 'L3D_view'"):
+        SemanticMap.load(tmp_path / "broken.npz")
+    with pytest.raises(FileFormatError, match="no such file"):
+        SemanticMap.load(tmp_path / "none.npz")
+
+
+def test_precomputed_maps_give_the_same_map(scene, tmp_path):
+    rig, traj, label = scene
+    rec = RasterRecognizer(rig, traj, label)
+    for t in range(traj.num_frames):
+        for name in rig.names:
+            save_confidence_map(tmp_path, name, t, rec.recognize(None, ImageContext(name, t)))
+    direct = build_semantic_map(FakeCapture(rig), traj, rec)
+    pre = build_semantic_map(FakeCapture(rig), traj, PrecomputedRecognizer(CLASSES, tmp_path))
+    for p in direct.poolings:
+        np.testing.assert_allclose(pre.L3D[p], direct.L3D[p], atol=2e-3)
+    # Errors: missing map, wrong K, missing array.
+    with pytest.raises(FileFormatError, match="missing confidence map of camera 'cam0' frame 99"):
+        PrecomputedRecognizer(CLASSES, tmp_path).recognize(None, ImageContext("cam0", 99))
+    with pytest.raises(FileFormatError, match=r"expected shape \(h, w, 2\)"):
+        PrecomputedRecognizer(CLASSES[:2], tmp_path).recognize(None, ImageContext("cam0", 0))
+    np.savez(tmp_path / "cam0" / "000050.npz", other=np.zeros((2, 2, 3)))
+    with pytest.raises(FileFormatError, match="no array 'L2D'"):
+        PrecomputedRecognizer(CLASSES, tmp_path).recognize(None, ImageContext("cam0", 50))
+    np.save(tmp_path / "cam0" / "000051.npy", np.ones((2, 2, 3), np.float32))
+    out = PrecomputedRecognizer(CLASSES, tmp_path).recognize(None, ImageContext("cam0", 51))
+    assert out.shape == (2, 2, 3) and out.dtype == np.float32
+    with pytest.raises(FileFormatError, match="no such folder"):
+        PrecomputedRecognizer(CLASSES, tmp_path / "nope")
+
+
+def test_errors(scene):
+    rig, traj, label = scene
+    small = rig.subset(rig.names[:4])
+    with pytest.raises(ValidationError, match="camera 'cam4' is not in the capture's rig"):
+        build_semantic_map(FakeCapture(small), traj, RasterRecognizer(rig, traj, label))
+
+    class Wrong(RasterRecognizer):
+        def recognize(self, image, context=None):
+            return super().recognize(image, context)[..., :2]
+
+    with pytest.raises(ValidationError, match=r"expected \(h, w, 3\)"):
+        build_semantic_map(FakeCapture(rig), traj, Wrong(rig, traj, label))
+    with pytest.raises(ValidationError, match="poolings: unknown 'median'"):
+        SemanticsConfig(poolings=("median",))
+    with pytest.raises(ValidationError, match="eps_e"):
+        SemanticsConfig(eps_e=1.5)
+
+
+def test_frame_subset_and_progress(scene, capsys):
+    rig, traj, label = scene
+    rec = RasterRecognizer(rig, traj, label)
+    smap = build_semantic_map(FakeCapture(rig), traj, rec, frames=range(2, 4), progress=True)
+    assert {t for _, t in rec.calls} == {2, 3}
+    alive = (traj.first_frame <= 3) & (traj.last_frame >= 2)
+    expected = np.minimum(traj.last_frame, 3) - np.maximum(traj.first_frame, 2) + 1
+    assert (smap.count["average"][~alive] == 0).all()
+    assert (smap.count["average"][alive] <= expected[alive]).all()
+    assert smap.count["average"][alive].sum() > 0.9 * expected[alive].sum()

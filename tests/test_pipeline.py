@@ -1,0 +1,185 @@
+"""``pointtraj run``: typed pipeline files, stage skipping, resuming, and the demo config."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pointtraj.cli import main
+from pointtraj.errors import FileFormatError, ValidationError
+from pointtraj.labelfile import load_labels
+from pointtraj.pipeline import (
+    PipelineConfig,
+    demo_pipeline,
+    load_pipeline,
+    run_pipeline,
+)
+from pointtraj.stages import SynthConfig
+from pointtraj.trajectories import Trajectories
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TINY = """
+name = "tiny"
+capture = "cap"
+work = "work"
+
+[synth]
+preset = "tiny4"
+frames = 3
+points_per_part = 40
+
+[semantics]
+recognizer = "simulated"
+options = { noise = "low" }
+
+[affinity]
+tau = 0.02
+
+[render]
+size = [320, 256]
+tail = 2
+"""
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "pipe.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """A tiny synthetic pipeline run once for the module: (config file, config, result)."""
+    tmp = tmp_path_factory.mktemp("pipe")
+    path = _write(tmp, TINY)
+    config = load_pipeline(path, base=tmp)
+    return path, config, run_pipeline(config)
+
+
+def test_run_makes_every_output(tiny_run):
+    _, config, result = tiny_run
+    assert result.ran == ["capture", "trajectories", "semantics", "affinity", "label", "render"]
+    traj = Trajectories.load(config.work / "trajectories.npz")
+    labels = load_labels(config.work / "labels.npz")
+    assert len(labels) == traj.num_trajectories > 50
+    assert labels.class_names[0] == "head"
+    csv = (config.work / "labels.csv").read_text(encoding="utf-8").splitlines()
+    assert len(csv) == traj.num_trajectories + 1
+    timings = json.loads((config.work / "timings.json").read_text(encoding="utf-8"))
+    assert set(timings) == {"synth", "reconstruct", "semantics", "affinity", "label", "render"}
+    assert all(v >= 0 for v in timings.values())
+    renders = config.work / "renders"
+    assert (renders / "legend.png").is_file() and (renders / "views" / "orbit.mp4").is_file()
+    assert len(list((renders / "views" / "orbit").glob("*.png"))) == 3
+    # Per-frame clouds carry the labels of their trajectories.
+    import open3d as o3d
+
+    pcd = o3d.t.io.read_point_cloud(str(config.work / "clouds" / "000001.ply"))
+    track = pcd.point.track_id.numpy().ravel()
+    np.testing.assert_array_equal(pcd.point.label.numpy().ravel(), labels.labels[track])
+
+
+def test_rerun_skips_and_parameter_change_reruns_dependants(tiny_run, tmp_path):
+    path, config, _ = tiny_run
+    again = run_pipeline(config)
+    assert again.ran == [] and len(again.skipped) == 6
+    labels_before = (config.work / "labels.npz").stat().st_mtime_ns
+    changed = dataclasses.replace(config, affinity=dataclasses.replace(config.affinity, tau=0.05))
+    res = run_pipeline(changed)
+    assert res.ran == ["affinity", "label", "render"]
+    assert res.skipped == ["capture", "trajectories", "semantics"]
+    assert (config.work / "labels.npz").stat().st_mtime_ns != labels_before
+    forced = run_pipeline(changed, force=["semantics"])
+    # affinity does not read the semantic map
+    assert forced.ran == ["semantics", "label", "render"]
+
+
+def test_interrupted_reconstruction_resumes(tmp_path):
+    config = load_pipeline(_write(tmp_path, TINY), base=tmp_path)
+    config = dataclasses.replace(config, stages=("capture", "trajectories"))
+    run_pipeline(config)
+    work = config.work
+    first_cloud = (work / "clouds" / "000000.ply").stat().st_mtime_ns
+    # A crash after frame 1: the last state and the store are gone, the pipeline record too.
+    (work / "state" / "000002.npz").unlink()
+    (work / "trajectories.npz").unlink()
+    (work / "pipeline.json").unlink()
+    res = run_pipeline(config)
+    assert "trajectories" in res.ran
+    assert (work / "clouds" / "000000.ply").stat().st_mtime_ns == first_cloud  # not redone
+    assert (work / "state" / "000002.npz").is_file()
+    assert Trajectories.load(work / "trajectories.npz").num_frames == 3
+
+
+def test_bad_pipeline_files_name_the_problem(tmp_path):
+    with pytest.raises(FileFormatError, match=r"pipe.toml: .*unknown key 'sigmaa'"):
+        load_pipeline(_write(tmp_path, TINY + "\n[reconstruct]\nsigmaa = 2\n"))
+    with pytest.raises(FileFormatError, match=r"missing required key 'work'"):
+        load_pipeline(_write(tmp_path, 'capture = "c"\n'))
+    with pytest.raises(FileFormatError, match=r"synth.preset: unknown 'ring99'"):
+        load_pipeline(_write(tmp_path, TINY.replace('"tiny4"', '"ring99"')))
+    with pytest.raises(FileFormatError, match=r"label.pooling 'weighted' is not among"):
+        load_pipeline(_write(tmp_path, TINY + '\n[label]\npooling = "weighted"\n'))
+    with pytest.raises(FileFormatError, match="invalid TOML"):
+        load_pipeline(_write(tmp_path, "capture = \n"))
+    with pytest.raises(FileFormatError, match="capture folder does not exist"):
+        run_pipeline(PipelineConfig(capture=tmp_path / "nowhere", work=tmp_path / "w"))
+    with pytest.raises(ValidationError, match="unknown stage 'labels'"):
+        run_pipeline(demo_pipeline(tmp_path), force=["labels"])
+
+
+def test_every_shipped_pipeline_loads_and_the_demo_file_matches_the_demo():
+    files = sorted((ROOT / "pipelines").glob("*.toml"))
+    assert {"synthetic_demo.toml", "paper69.toml"} <= {f.name for f in files}
+    for f in files:
+        assert isinstance(load_pipeline(f, base=ROOT), PipelineConfig)
+    from_file = load_pipeline(ROOT / "pipelines" / "synthetic_demo.toml", base=ROOT)
+    assert from_file == demo_pipeline(ROOT / "pointtraj-demo")
+
+
+def test_run_command(tmp_path):
+    path = _write(tmp_path, TINY.replace("frames = 3", "frames = 2"))
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        runner = CliRunner()
+        res = runner.invoke(main, ["run", str(path), "--work", "w2"])
+        assert res.exit_code == 0, res.output
+        assert "labels" in res.output and (tmp_path / "w2" / "labels.npz").is_file()
+        res = runner.invoke(main, ["run", str(path), "--work", "w2"])
+        assert "up to date: capture, trajectories, semantics, affinity, label, render" in res.output
+        res = runner.invoke(main, ["run", "missing.toml"])
+        assert res.exit_code == 1 and "missing.toml: no such file" in res.output
+    finally:
+        os.chdir(cwd)
+
+
+def test_synth_config_validates():
+    with pytest.raises(ValidationError, match="synth.scene: unknown 'juggle'"):
+        SynthConfig(scene="juggle")
+
+
+def test_load_api(tiny_run, tmp_path):
+    import pointtraj
+
+    _, config, _ = tiny_run
+    res = pointtraj.load(config.work)
+    M = res.trajectories.num_trajectories
+    assert res.labels is not None and res.semantic_map is not None
+    assert res.class_names == res.labels.class_names and res.class_colors.shape == (15, 3)
+    pcd = res.pointcloud(1)
+    track = pcd.point.track_id.numpy().ravel()
+    label = pcd.point.label.numpy().ravel()
+    np.testing.assert_array_equal(label, res.label[track])
+    colors = np.rint(pcd.point.colors.numpy() * 255).astype(int)
+    np.testing.assert_array_equal(colors, res.class_colors[label])
+    assert len(res.label) == M
+    with pytest.raises(FileFormatError, match="trajectories.npz: no such file"):
+        pointtraj.load(tmp_path)
