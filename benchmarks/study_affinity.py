@@ -63,33 +63,6 @@ def with_noise(traj, sigma: float, seed: int = 0):
     )
 
 
-def voted_labels(capture: Path, traj) -> np.ndarray:
-    """(M,) majority ground-truth label at each trajectory's visible projections (-1 background,
-    -2 never seen)."""
-    from pointtraj.session import Capture
-    from pointtraj.synth.groundtruth import load_label_map
-
-    cap = Capture.open(capture)
-    rig = cap.rig.subset(traj.camera_names)
-    K = int(np.load(capture / "gt" / "points.npz")["class_names"].shape[0])
-    votes = np.zeros((traj.num_trajectories, K + 1))
-    for t in range(traj.num_frames):
-        fs = traj.frame(t)
-        if len(fs.track_id) == 0:
-            continue
-        proj = rig.project(fs.xyz)
-        for c, name in enumerate(rig.names):
-            lm = load_label_map(capture, name, t)
-            ok = proj.in_image[c] & (fs.visibility[:, c] > 0.5)
-            px = np.rint(proj.pixels[c][ok]).astype(np.int64)
-            px[:, 0] = px[:, 0].clip(0, lm.shape[1] - 1)
-            px[:, 1] = px[:, 1].clip(0, lm.shape[0] - 1)
-            np.add.at(votes, (fs.track_id[ok], lm[px[:, 1], px[:, 0]] + 1), 1)
-    truth = votes.argmax(axis=1) - 1
-    truth[votes.sum(axis=1) == 0] = -2
-    return truth
-
-
 def prepare_work(capture: Path, work: Path, options: list[str]):
     """(trajectories, truth (M,), SemanticMap, class names, 'ground truth' | 'voted')."""
     from pointtraj.semantics.semantic_map import SemanticMap
@@ -112,6 +85,8 @@ def prepare_work(capture: Path, work: Path, options: list[str]):
     )
     if is_gt and np.allclose(traj.xyz, gt_traj.xyz, atol=1e-6):
         return traj, gt_label, smap, names, "ground truth"
+    from pointtraj.evaluate.groundtruth import voted_labels
+
     return traj, voted_labels(capture, traj), smap, names, "voted"
 
 

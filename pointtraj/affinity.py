@@ -66,6 +66,7 @@ __all__ = [
     "fit_local_rigid",
     "kabsch_rotation",
     "pair_errors",
+    "symmetric_affinity",
     "save_affinity",
     "load_affinity",
 ]
@@ -727,6 +728,41 @@ def pair_errors(
     return out
 
 
+def symmetric_affinity(
+    e_fwd: np.ndarray,
+    e_bwd: np.ndarray,
+    tau: float,
+    symmetrize: Literal["mean", "max", "min"] = "mean",
+) -> np.ndarray:
+    """``A(i, j) = exp(-(e_ij / τ)^2)`` of both directions, combined (paper Equation (affinity)).
+
+    Parameters
+    ----------
+    e_fwd, e_bwd : (Q,) float ndarray
+        :func:`pair_errors` of ``(i, j)`` and of ``(j, i)``; NaN where untestable.
+    tau : float
+        τ (m).
+    symmetrize : {"mean", "max", "min"}
+        How the two directions combine (only available directions count).
+
+    Returns
+    -------
+    (Q,) float64 ndarray
+        In [0, 1]; NaN where neither direction could be tested.
+    """
+    vals = np.exp(-((np.stack([e_fwd, e_bwd], axis=1) / tau) ** 2))  # (Q, 2), NaN = none
+    fin = np.isfinite(vals)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if symmetrize == "mean":
+            A = np.where(fin, vals, 0.0).sum(axis=1) / fin.sum(axis=1)
+        elif symmetrize == "max":
+            A = np.fmax(vals[:, 0], vals[:, 1])
+        else:
+            A = np.fmin(vals[:, 0], vals[:, 1])
+    A[~fin.any(axis=1)] = np.nan
+    return A
+
+
 def compute_affinity(
     traj: Trajectories,
     config: AffinityConfig | None = None,
@@ -772,16 +808,8 @@ def compute_affinity(
     e_bwd = pair_errors(traj, tf, j, i, cfg.mode)
     del tf
     report("symmetrise", 4, 5)
-    vals = np.exp(-((np.stack([e_fwd, e_bwd], axis=1) / cfg.tau) ** 2))  # (Q, 2), NaN = none
-    fin = np.isfinite(vals)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        if cfg.symmetrize == "mean":
-            A = np.where(fin, vals, 0.0).sum(axis=1) / fin.sum(axis=1)
-        elif cfg.symmetrize == "max":
-            A = np.fmax(vals[:, 0], vals[:, 1])
-        else:
-            A = np.fmin(vals[:, 0], vals[:, 1])
-    untestable = ~fin.any(axis=1)
+    A = symmetric_affinity(e_fwd, e_bwd, cfg.tau, cfg.symmetrize)
+    untestable = np.isnan(A)
     A[untestable] = cfg.missing_affinity
     w = A if cfg.distance_scale <= 0 else A * np.exp(-((dist / cfg.distance_scale) ** 2))
     ok = w >= cfg.min_affinity

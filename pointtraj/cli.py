@@ -31,6 +31,7 @@ COMMANDS: dict[str, str] = {
     "calibrate": "pointtraj.calibrate_cli:calibrate",
     "examples": "pointtraj.examples_cli:examples",
     "render": "pointtraj.render_cli:render",
+    "evaluate": "pointtraj.evaluate.cli:evaluate",
 }
 
 

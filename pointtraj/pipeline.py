@@ -28,6 +28,7 @@ from typing import Any, Literal
 
 from .affinity import AffinityConfig
 from .errors import FileFormatError, ValidationError
+from .evaluate.study import EvaluateConfig
 from .reconstruct.track import ReconstructConfig
 from .render import RenderConfig
 from .stages import (
@@ -57,6 +58,7 @@ STAGES: tuple[str, ...] = (
     "semantics",
     "affinity",
     "label",
+    "evaluate",
     "render",
 )
 
@@ -113,6 +115,7 @@ class PipelineConfig:
     semantics : SemanticsStageConfig
     affinity : AffinityConfig
     label : LabelStageConfig
+    evaluate : EvaluateConfig
     render : RenderConfig
     """
 
@@ -129,6 +132,7 @@ class PipelineConfig:
     semantics: SemanticsStageConfig = field(default_factory=SemanticsStageConfig)
     affinity: AffinityConfig = field(default_factory=AffinityConfig)
     label: LabelStageConfig = field(default_factory=LabelStageConfig)
+    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
 
     def __post_init__(self) -> None:
@@ -369,6 +373,17 @@ def _stage_plan(config: PipelineConfig) -> list[_Stage]:
             lambda p: stages.label_work(wf.path, config.label, progress=p),
         ),
         _Stage(
+            "evaluate",
+            config.evaluate,
+            lambda: (
+                _capture_stamp(cap)
+                + [_stamp(p) for p in (wf.trajectories, wf.semantic_map, wf.affinity, wf.labels)]
+                + [_key(config.semantics, []), _key(config.affinity, [])]
+            ),
+            [wf.report / "index.md", wf.report / "metrics.json"],
+            lambda p: _evaluate(config, p),
+        ),
+        _Stage(
             "render",
             config.render,
             lambda: (
@@ -380,6 +395,20 @@ def _stage_plan(config: PipelineConfig) -> list[_Stage]:
         ),
     ]
     return [s for s in plan if s.name in config.stages]
+
+
+def _evaluate(config: PipelineConfig, progress: Progress | None) -> None:
+    from .evaluate.study import evaluate_work
+
+    evaluate_work(
+        config.work,
+        config.evaluate,
+        config.capture,
+        affinity_config=config.affinity,
+        semantics_config=config.semantics,
+        title=f"pointtraj report: {config.name or Path(config.work).name}",
+        progress=progress,
+    )
 
 
 def _render(work: Path, config: RenderConfig, progress: Progress | None) -> None:

@@ -119,6 +119,7 @@ def run(config_path: Path, work: Path | None, capture: Path | None, force: tuple
     result = run_and_report(config, force)
     for line in _summary(result):
         click.echo(line)
+    _headline(result)
 
 
 @click.command("demo")
@@ -148,3 +149,23 @@ def demo(out: Path, frames: int | None, force: tuple[str, ...]) -> None:
     result = run_and_report(config, force)
     for line in _summary(result):
         click.echo(line)
+    _headline(result)
+
+
+def _headline(result) -> None:
+    """Print the report's main figures, if the evaluate stage wrote them."""
+    import json
+
+    from .evaluate.study import headline
+
+    path = result.outputs.get("report")
+    if path is None or not (path.parent / "metrics.json").is_file():
+        return
+    metrics = json.loads((path.parent / "metrics.json").read_text(encoding="utf-8"))
+    click.echo("")
+    for line in headline(metrics):
+        click.echo(line)
+    click.echo(f"report: {path}")
+    renders = result.outputs.get("renders")
+    if renders is not None:
+        click.echo(f"renders: {renders}")

@@ -65,7 +65,15 @@ def tiny_run(tmp_path_factory):
 
 def test_run_makes_every_output(tiny_run):
     _, config, result = tiny_run
-    assert result.ran == ["capture", "trajectories", "semantics", "affinity", "label", "render"]
+    assert result.ran == [
+        "capture",
+        "trajectories",
+        "semantics",
+        "affinity",
+        "label",
+        "evaluate",
+        "render",
+    ]
     traj = Trajectories.load(config.work / "trajectories.npz")
     labels = load_labels(config.work / "labels.npz")
     assert len(labels) == traj.num_trajectories > 50
@@ -73,7 +81,27 @@ def test_run_makes_every_output(tiny_run):
     csv = (config.work / "labels.csv").read_text(encoding="utf-8").splitlines()
     assert len(csv) == traj.num_trajectories + 1
     timings = json.loads((config.work / "timings.json").read_text(encoding="utf-8"))
-    assert set(timings) == {"synth", "reconstruct", "semantics", "affinity", "label", "render"}
+    assert set(timings) == {
+        "synth",
+        "reconstruct",
+        "semantics",
+        "affinity",
+        "label",
+        "evaluate",
+        "render",
+    }
+    # The report: the paper's studies and the ground-truth metrics of this synthetic capture.
+    metrics = json.loads((config.work / "report" / "metrics.json").read_text(encoding="utf-8"))
+    assert metrics["trajectories.count"] == traj.num_trajectories
+    assert 0 <= metrics["gt.error_m.median"] <= metrics["gt.error_m.p90"]
+    assert metrics["gt.error_m.median"] < 0.05  # 320x256 images: a pixel is 12 mm there
+    for key in ("gt.accuracy.graphcut", "gt.accuracy.view_argmax", "gt.accuracy.average_argmax"):
+        assert 0.2 < metrics[key] <= 1.0, key
+    assert {"validity.view.1cams", "validity.average.3cams", "timing.reconstruct_s"} <= set(metrics)
+    index = (config.work / "report" / "index.md").read_text(encoding="utf-8")
+    for title in ("Ground truth", "Affinity effectiveness", "Predictive validity", "Timing"):
+        assert f"## {title}" in index
+    assert (config.work / "report" / "validity.png").is_file()
     assert all(v >= 0 for v in timings.values())
     renders = config.work / "renders"
     assert (renders / "legend.png").is_file() and (renders / "views" / "orbit.mp4").is_file()
@@ -89,16 +117,16 @@ def test_run_makes_every_output(tiny_run):
 def test_rerun_skips_and_parameter_change_reruns_dependants(tiny_run, tmp_path):
     path, config, _ = tiny_run
     again = run_pipeline(config)
-    assert again.ran == [] and len(again.skipped) == 6
+    assert again.ran == [] and len(again.skipped) == 7
     labels_before = (config.work / "labels.npz").stat().st_mtime_ns
     changed = dataclasses.replace(config, affinity=dataclasses.replace(config.affinity, tau=0.05))
     res = run_pipeline(changed)
-    assert res.ran == ["affinity", "label", "render"]
+    assert res.ran == ["affinity", "label", "evaluate", "render"]
     assert res.skipped == ["capture", "trajectories", "semantics"]
     assert (config.work / "labels.npz").stat().st_mtime_ns != labels_before
     forced = run_pipeline(changed, force=["semantics"])
     # affinity does not read the semantic map
-    assert forced.ran == ["semantics", "label", "render"]
+    assert forced.ran == ["semantics", "label", "evaluate", "render"]
 
 
 def test_interrupted_reconstruction_resumes(tmp_path):
@@ -154,7 +182,10 @@ def test_run_command(tmp_path):
         assert res.exit_code == 0, res.output
         assert "labels" in res.output and (tmp_path / "w2" / "labels.npz").is_file()
         res = runner.invoke(main, ["run", str(path), "--work", "w2"])
-        assert "up to date: capture, trajectories, semantics, affinity, label, render" in res.output
+        assert (
+            "up to date: capture, trajectories, semantics, affinity, label, evaluate, render"
+            in res.output
+        )
         res = runner.invoke(main, ["run", "missing.toml"])
         assert res.exit_code == 1 and "missing.toml: no such file" in res.output
     finally:

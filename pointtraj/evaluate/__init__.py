@@ -11,8 +11,11 @@ from .metrics import (
     temporal_consistency,
 )
 from .report import Section, write_report
+from .study import EvaluateConfig, evaluate_work
 
 __all__ = [
+    "EvaluateConfig",
+    "evaluate_work",
     "LabelAccuracy",
     "Section",
     "agreement_rate",

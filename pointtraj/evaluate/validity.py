@@ -65,6 +65,7 @@ def collect_camera_samples(
     min_confidence: float = 0.5,
     seed: int = 0,
     progress: Callable[[int], None] | None = None,
+    visibility: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> CameraSamples:
     """Sample every camera's confidences at a random subset of trajectories, frame by frame.
 
@@ -86,6 +87,10 @@ def collect_camera_samples(
     seed : int
     progress : callable, optional
         Called with the number of frames done after each frame.
+    visibility : callable ``(xyz (N, 3), V (N, C)) -> (N, C)``, optional
+        The visibility that pooling uses, from all of a frame's points and their stored
+        visibility (e.g. :func:`pointtraj.semantics.semantic_map.geometric_visibility`);
+        default: the stored visibility.
 
     Returns
     -------
@@ -105,7 +110,12 @@ def collect_camera_samples(
     C = len(rig)
     for t in range(0, trajectories.num_frames, frame_stride):
         rows = trajectories.frame_rows(t)
-        rows = rows[chosen[trajectories.row_track[rows]]]
+        keep = chosen[trajectories.row_track[rows]]
+        V_rows = None
+        if visibility is not None and keep.any():
+            V_all = dequantize_visibility(trajectories.visibility[rows])
+            V_rows = visibility(trajectories.xyz[rows], V_all)[keep]
+        rows = rows[keep]
         if len(rows):
             proj = rig.project(trajectories.xyz[rows])
             L = np.zeros((len(rows), C, num_classes), np.float16)
@@ -116,7 +126,9 @@ def collect_camera_samples(
             parts["track"].append(trajectories.row_track[rows])
             parts["frame"].append(np.full(len(rows), t, np.int64))
             parts["L"].append(L)
-            parts["V"].append(dequantize_visibility(trajectories.visibility[rows]))
+            parts["V"].append(
+                dequantize_visibility(trajectories.visibility[rows]) if V_rows is None else V_rows
+            )
             parts["inimg"].append(proj.in_image.T)
         if progress is not None:
             progress(1)
@@ -157,7 +169,7 @@ def _track_labels(track: np.ndarray, pooled: np.ndarray) -> np.ndarray:
     sums = np.zeros((len(uniq), K))
     np.add.at(sums, inv, pooled[ok])
     out = np.full(track.max() + 1 if len(track) else 0, -1, np.int64)
-    out[uniq] = sums.argmax(axis=1)
+    out[uniq] = np.where(sums.max(axis=1) > 0, sums.argmax(axis=1), -1)  # -1: no confidence
     return out
 
 
@@ -192,7 +204,9 @@ def predictive_validity(
     -------
     dict
         ``{pooling: {n: mean agreement}}``, averaged over held-out cameras and draws
-        (weighted by the number of evaluated samples).
+        (weighted by the number of evaluated samples). Only samples whose trajectory every
+        pooling labels from the subset count, so that the poolings are compared on the same
+        samples.
     """
     from ..semantics.pooling import pool_views
 
@@ -215,8 +229,10 @@ def predictive_validity(
             others = np.array([c for c in range(C) if c != h])
             if n > len(others):
                 continue
+            obs = samples.observed[evaluate, h]
             for _ in range(draws if n < len(others) else 1):
                 subset = np.sort(rng.choice(others, size=n, replace=False))
+                pred = {}
                 for p in poolings:
                     pooled = pool_views(
                         L[:, subset],
@@ -226,11 +242,13 @@ def predictive_validity(
                         in_image=samples.in_image[:, subset],
                         camera_axis=1,
                     )
-                    labels = _track_labels(samples.track, pooled)
-                    pred = labels[samples.track[evaluate]]
-                    obs = samples.observed[evaluate, h]
-                    hits[p] += float(np.sum(pred == obs))
-                    total[p] += float(len(obs))
+                    pred[p] = _track_labels(samples.track, pooled)[samples.track[evaluate]]
+                # Compare the poolings on the same samples: those every pooling labels (a
+                # pooling that keeps only visible cameras labels fewer trajectories).
+                both = np.all([pred[p] >= 0 for p in poolings], axis=0)
+                for p in poolings:
+                    hits[p] += float(np.sum(pred[p][both] == obs[both]))
+                    total[p] += float(both.sum())
         for p in poolings:
             out[p][n] = hits[p] / total[p] if total[p] else float("nan")
     return out

@@ -38,6 +38,7 @@ __all__ = [
     "SemanticsConfig",
     "SemanticMap",
     "build_semantic_map",
+    "geometric_visibility",
     "normalized_correlation",
     "load_semantic_map",
     "save_semantic_map",
@@ -70,6 +71,20 @@ class SemanticsConfig:
         At most this many trajectories get per-frame samples (None: as many as fit the budget).
     seed : int
         Seed of the random choice of sampled trajectories.
+    visibility : {"geometric", "observed"}
+        The visibility V that pooling uses. ``"observed"``: the trajectory store's, which is 0
+        in every camera without an observation of the point (reprojection-error visibility,
+        the paper's Equation (visibility)). ``"geometric"`` (default): also
+        ``unobserved_visibility`` in the cameras where the point projects into the image and is
+        not occluded by the frame's own points (:func:`geometric_visibility`): the matches chain
+        into tracks of only a few views, so observed visibility leaves view pooling one or
+        two cameras to choose from (``docs/user_guide.md`` has the measurement).
+    unobserved_visibility : float
+        V of an unoccluded camera without an observation, with ``"geometric"``.
+    occlusion_depth_m : float
+        Depth tolerance of the occlusion test (m), with ``"geometric"``.
+    occlusion_cell_px : float
+        Z-buffer cell of the occlusion test (pixels), with ``"geometric"``.
     """
 
     eps_e: float = 0.1
@@ -78,8 +93,20 @@ class SemanticsConfig:
     sample_budget_mb: float = 256.0
     sample_tracks: int | None = None
     seed: int = 0
+    visibility: str = "geometric"
+    unobserved_visibility: float = 0.5
+    occlusion_depth_m: float = 0.05
+    occlusion_cell_px: float = 8.0
 
     def __post_init__(self) -> None:
+        if self.visibility not in ("geometric", "observed"):
+            raise ValidationError(f"visibility: 'geometric' or 'observed', got {self.visibility!r}")
+        if not self.eps_e < self.unobserved_visibility <= 1.0:
+            raise ValidationError(
+                f"unobserved_visibility: must be in (eps_e, 1], got {self.unobserved_visibility}"
+            )
+        if not (self.occlusion_depth_m > 0 and self.occlusion_cell_px > 0):
+            raise ValidationError("occlusion_depth_m and occlusion_cell_px must be > 0")
         if not 0.0 <= self.eps_e < 1.0:
             raise ValidationError(f"eps_e: must be in [0, 1), got {self.eps_e}")
         if not self.poolings:
@@ -93,6 +120,40 @@ class SemanticsConfig:
             raise ValidationError(f"chunk_size: must be >= 1, got {self.chunk_size}")
         if self.sample_budget_mb < 0:
             raise ValidationError(f"sample_budget_mb: must be >= 0, got {self.sample_budget_mb}")
+
+
+def geometric_visibility(
+    rig: Any, xyz: np.ndarray, visibility: np.ndarray, config: SemanticsConfig
+) -> np.ndarray:
+    """Observed visibility, raised where a camera sees the point unoccluded without observing it.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    xyz : (N, 3) float ndarray
+        One frame's points (all of them: they are the occluders).
+    visibility : (N, C) float ndarray
+        Observed visibility (the trajectory store's).
+    config : SemanticsConfig
+        ``unobserved_visibility``, ``occlusion_depth_m``, ``occlusion_cell_px``.
+
+    Returns
+    -------
+    (N, C) float32 ndarray
+        ``max(V, unobserved_visibility)`` where the point is inside camera c's image, in front
+        of it and not behind the frame's z-buffer there
+        (:func:`pointtraj.reconstruct.triangulate.occlusion_test`); ``V`` elsewhere.
+    """
+    from ..reconstruct.triangulate import occlusion_test
+
+    V = np.asarray(visibility, np.float32)
+    if len(xyz) == 0:
+        return V
+    X = np.asarray(xyz, np.float64)
+    seen = rig.project(X).in_image.T  # (N, C) in front and inside the image
+    seen &= ~occlusion_test(rig, X, config.occlusion_depth_m, cell_px=config.occlusion_cell_px)
+    return np.where(seen, np.maximum(V, np.float32(config.unobserved_visibility)), V)
 
 
 class CaptureLike(Protocol):
@@ -475,6 +536,8 @@ def build_semantic_map(
             if N == 0:
                 continue
             V = fs.visibility  # (N, C)
+            if config.visibility == "geometric":
+                V = geometric_visibility(rig, fs.xyz, V, config)
             if "average" in pools:
                 needed = np.ones(C, dtype=bool)
             else:

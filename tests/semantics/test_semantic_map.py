@@ -18,6 +18,7 @@ from pointtraj.semantics.semantic_map import (
     SemanticMap,
     SemanticsConfig,
     build_semantic_map,
+    geometric_visibility,
     normalized_correlation,
 )
 from pointtraj.trajectories import Trajectories
@@ -107,7 +108,7 @@ class FakeCapture:
         return np.zeros((H, W, 3), np.uint8)
 
 
-def brute_force(rig, traj, recognizer, pooling, eps=0.1):
+def brute_force(rig, traj, recognizer, pooling, eps=0.1, config=None):
     """L3D and per-point-frame pooled rows, computed point-frame by point-frame."""
     M, K = len(traj), len(CLASSES)
     rows = np.full((traj.num_point_frames, K), np.nan, np.float32)
@@ -126,7 +127,10 @@ def brute_force(rig, traj, recognizer, pooling, eps=0.1):
                 for c, name in enumerate(rig.names)
             ]
         )
-        rows[fs.rows] = pool_views(L, fs.visibility, eps, pooling, in_image=proj.in_image)
+        V = fs.visibility
+        if config is not None and config.visibility == "geometric":
+            V = geometric_visibility(rig, fs.xyz, V, config)
+        rows[fs.rows] = pool_views(L, V, eps, pooling, in_image=proj.in_image)
     L3D = np.zeros((M, K), np.float32)
     count = np.zeros(M, int)
     for m in range(M):
@@ -143,17 +147,19 @@ def scene():
     return make_scene()
 
 
-def test_streaming_map_equals_brute_force(scene):
+@pytest.mark.parametrize("visibility", ["observed", "geometric"])
+def test_streaming_map_equals_brute_force(scene, visibility):
     rig, traj, label = scene
     rec = RasterRecognizer(rig, traj, label)
     cap = FakeCapture(rig)
-    smap = build_semantic_map(cap, traj, rec, config=SemanticsConfig(chunk_size=37))
+    cfg = SemanticsConfig(chunk_size=37, visibility=visibility)
+    smap = build_semantic_map(cap, traj, rec, config=cfg)
     assert smap.class_names == CLASSES and smap.poolings == ("view", "average")
     assert cap.reads == len(rec.calls)  # one image read per recognition
     frames_with_points = [t for t in range(traj.num_frames) if len(traj.frame_rows(t))]
     assert sorted(rec.calls) == sorted((n, t) for n in rig.names for t in frames_with_points)
     for p in ("view", "average"):
-        L3D, count, rows = brute_force(rig, traj, RasterRecognizer(rig, traj, label), p)
+        L3D, count, rows = brute_force(rig, traj, RasterRecognizer(rig, traj, label), p, config=cfg)
         np.testing.assert_array_equal(smap.count[p], count)
         np.testing.assert_allclose(smap.L3D[p], L3D, atol=1e-5)
         # Every trajectory's per-frame samples are kept (they fit the budget).

@@ -1,0 +1,58 @@
+"""``pointtraj evaluate WORK``: the report of a work folder (``WORK/report/``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..errors import PointtrajError
+
+__all__ = ["evaluate"]
+
+
+@click.command("evaluate")
+@click.argument("work", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option(
+    "--capture",
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+    help="The capture (default: the one WORK/work.toml records).",
+)
+@click.option("--validity-tracks", type=int, help="Trajectories sampled for predictive validity.")
+@click.option("--validity-frames", type=int, help="Frames used for predictive validity.")
+@click.option("--seed", type=int, help="Seed of the random sampling.")
+@click.option(
+    "--config",
+    "config_path",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="TOML file with an [evaluate] table of EvaluateConfig fields (a pipeline file works; "
+    "its [semantics] table then names the recogniser of the validity study).",
+)
+def evaluate(work: Path, capture: Path | None, config_path: Path | None, **options) -> None:
+    """Write WORK/report/: index.md, PNG plots and metrics.json, beside the paper's figures.
+
+    Runs the paper's three studies (temporal consistency, affinity effectiveness, predictive
+    validity on held-out cameras) and, on synthetic captures, the ground-truth metrics.
+    """
+    from ..affinity_cli import _config_from
+    from ..pipeline_cli import ProgressBars
+    from ..stages import SemanticsStageConfig
+    from .study import EvaluateConfig, evaluate_work, headline
+
+    cfg = _config_from(EvaluateConfig, config_path, "evaluate", options)
+    semantics = None
+    if config_path is not None:
+        from ..config import load_toml
+
+        if "semantics" in load_toml(config_path):
+            semantics = _config_from(SemanticsStageConfig, config_path, "semantics", {})
+    bars = ProgressBars()
+    try:
+        metrics = evaluate_work(work, cfg, capture, semantics_config=semantics, progress=bars)
+    except PointtrajError as exc:
+        raise click.ClickException(str(exc)) from None
+    finally:
+        bars.close()
+    for line in headline(metrics):
+        click.echo(line)
+    click.echo(f"report: {work / 'report' / 'index.md'}")

@@ -1,0 +1,132 @@
+"""``pointtraj evaluate``: the report of a work folder, on a tiny synthetic capture."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pointtraj.cli import main
+from pointtraj.errors import FileFormatError, ValidationError
+from pointtraj.evaluate.groundtruth import true_labels, voted_labels
+from pointtraj.evaluate.study import (
+    EvaluateConfig,
+    affinity_effectiveness,
+    evaluate_work,
+    headline,
+)
+from pointtraj.stages import (
+    SemanticsStageConfig,
+    SynthConfig,
+    affinity_work,
+    ground_truth_work,
+    label_work,
+    semantics_work,
+    synthesize,
+)
+from pointtraj.trajectories import Trajectories
+
+
+@pytest.fixture(scope="module")
+def gt_work(tmp_path_factory):
+    """Ground-truth trajectories of a tiny capture taken through semantics, affinity and label."""
+    tmp = tmp_path_factory.mktemp("study")
+    cap, work = tmp / "cap", tmp / "work"
+    synthesize(cap, SynthConfig(preset="tiny4", frames=3, points_per_part=40))
+    ground_truth_work(work, cap)
+    semantics_work(work, SemanticsStageConfig(options={"noise": "low"}), cap)
+    affinity_work(work)
+    label_work(work)
+    return cap, work
+
+
+def test_evaluate_writes_the_report(gt_work):
+    cap, work = gt_work
+    metrics = evaluate_work(work)
+    saved = json.loads((work / "report" / "metrics.json").read_text(encoding="utf-8"))
+    assert saved["trajectories.count"] == metrics["trajectories.count"] > 100
+    # Ground-truth trajectories lie on the surface: what is left is the depth maps' own
+    # sampling (a pixel is 12 mm wide at this 320x256 rig's distance).
+    assert metrics["gt.error_m.median"] < 0.003
+    # 15 classes, and 40x32-cell recognition maps at this size: far above chance (1/15).
+    assert metrics["gt.accuracy.graphcut"] > 0.45
+    assert metrics["gt.accuracy.view_argmax"] > 0.45
+    assert set(metrics) >= {"validity.view.1cams", "validity.average.3cams"}
+    assert all(0 <= metrics[f"validity.view.{n}cams"] <= 1 for n in (1, 2, 3))
+    index = (work / "report" / "index.md").read_text(encoding="utf-8")
+    assert "## Ground truth" in index and "paper's Table 1" in index
+    for png in ("confusion.png", "affinity.png", "validity.png"):
+        assert (work / "report" / png).stat().st_size > 1000
+    lines = headline(saved)
+    assert lines[0].startswith(f"trajectories: {metrics['trajectories.count']}")
+    assert any(line.startswith("label accuracy: graph cut") for line in lines)
+
+
+def test_true_labels_of_ground_truth_and_of_other_stores(gt_work):
+    cap, work = gt_work
+    traj = Trajectories.load(work / "trajectories.npz")
+    truth, source = true_labels(cap, traj)
+    assert source == "ground truth" and truth.shape == (traj.num_trajectories,)
+    # Voting with the label maps agrees with the points' own labels almost everywhere.
+    voted = voted_labels(cap, traj)
+    seen = voted >= 0
+    assert seen.mean() > 0.8
+    assert np.mean(voted[seen] == truth[seen]) > 0.95
+    # Moved points are no longer the ground truth: their labels are voted.
+    moved = Trajectories(
+        traj.first_frame,
+        traj.offsets,
+        traj.xyz + np.float32(1e-3),
+        traj.visibility,
+        traj.reprojection_error,
+        traj.color,
+        traj.camera_names,
+        traj.fps,
+        traj.num_frames,
+    )
+    assert true_labels(cap, moved)[1] == "voted"
+
+
+def _two_bodies(T=6, n=800, seed=0):
+    """Two 25 cm boxes of points 35 cm apart, one still, one turning: labels 0 and 1."""
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(-0.125, 0.125, (n, 3))
+    b = rng.uniform(-0.125, 0.125, (n, 3))
+    xyz = np.zeros((2 * n, T, 3))
+    for t in range(T):
+        ang = 0.15 * t
+        R = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]])
+        xyz[:n, t] = a
+        xyz[n:, t] = b @ R.T + [0.35, 0, 0.02 * t]
+    vis = np.ones((2 * n, T, 2))
+    labels = np.repeat([0, 1], n)
+    return Trajectories.from_dense(xyz, vis, camera_names=["a", "b"]), labels
+
+
+def test_affinity_effectiveness_separates_rigid_bodies():
+    traj, labels = _two_bodies()
+    res = affinity_effectiveness(traj, labels, radius=0.6, draws=16, bin_width=0.1)
+    assert res["bins"].tolist() == pytest.approx([0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    # Pairs 30-40 cm apart mostly join the two bodies; the SE(3) neighbours keep to one body
+    # at every distance, and keep most of a body's own pairs.
+    assert res["eps_s"][3] > 0.3
+    assert np.nanmax(res["se3"]) < 0.05
+    assert np.nanmin(res["se3_recall"][:2]) > 0.5
+
+
+def test_bad_input(tmp_path, gt_work):
+    with pytest.raises(FileFormatError, match="trajectories.npz: no such file"):
+        evaluate_work(tmp_path)
+    with pytest.raises(ValidationError, match="evaluate.affinity_bin"):
+        EvaluateConfig(affinity_bin=2.0)
+    res = CliRunner().invoke(main, ["evaluate", str(tmp_path)])
+    assert res.exit_code == 1 and "trajectories.npz: no such file" in res.output
+
+
+def test_evaluate_command(gt_work):
+    cap, work = gt_work
+    res = CliRunner().invoke(main, ["evaluate", str(work), "--validity-frames", "2"])
+    assert res.exit_code == 0, res.output
+    assert "label accuracy: graph cut" in res.output and "report:" in res.output
