@@ -212,7 +212,7 @@ def demo_pipeline(out: str | os.PathLike, frames: int | None = None) -> Pipeline
     PipelineConfig
     """
     out = Path(out)
-    synth = SynthConfig(preset="ring8", scene="dribble", frames=30, seed=0, points_per_part=300)
+    synth = SynthConfig(preset="ring8", scene="dribble", frames=60, seed=0, points_per_part=300)
     if frames is not None:
         synth = dataclasses.replace(synth, frames=int(frames))
     return PipelineConfig(

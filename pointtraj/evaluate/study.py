@@ -507,7 +507,8 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
             "time-averaged confidences) from n other cameras, project them into the held-out "
             "camera, and count how often the label agrees with the recogniser there "
             f"({len(samples.track)} point-frames of {len(np.unique(samples.track))} trajectories, "
-            f"every {stride}th frame, {cfg.validity_draws} random camera subsets per size). "
+            f"{'every frame' if stride == 1 else f'one frame in {stride}'}, "
+            f"{cfg.validity_draws} random camera subsets per size). "
             "No ground truth is used.",
             "",
             *rows,
