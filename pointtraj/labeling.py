@@ -51,7 +51,9 @@ class LabelingConfig:
     Attributes
     ----------
     smoothness : float
-        λ of the paper's Equation (cost), weight of the affinity (Potts) term.
+        λ of the paper's Equation (cost), weight of the affinity (Potts) term. 0.5 was the best
+        of 0.3-2 on the demo's reconstructed trajectories (83.8 % against 82.4 % at 0.3) and on
+        ring8 ground-truth trajectories (84.0 % against 76.3 %), with the simulated recogniser.
     data_cost : {"neglog", "paper"}
         ``"paper"``: φ = 0 for the argmax label, ``L3D[argmax]`` otherwise. ``"neglog"``:
         ``-log(L3D / ΣL3D + 1e-3)`` shifted to a zero row minimum, which tells the other labels
@@ -64,7 +66,7 @@ class LabelingConfig:
         Upper bound on sweeps over the labels (it stops earlier when no move improves).
     """
 
-    smoothness: float = 0.3
+    smoothness: float = 0.5
     data_cost: Literal["neglog", "paper"] = "neglog"
     method: Literal["restricted", "full"] = "restricted"
     plausible_threshold: float = 0.05
@@ -165,7 +167,7 @@ def labeling_energy(
     row: np.ndarray,
     col: np.ndarray,
     weight: np.ndarray,
-    smoothness: float = 0.3,
+    smoothness: float = 0.5,
 ) -> float:
     """``Σ_i D[i, U(i)] + λ Σ_e w_e [U(row_e) ≠ U(col_e)]`` (paper Equation (cost)).
 
@@ -253,8 +255,8 @@ def expand_alpha(
     m = np.minimum(u0, u1)
     g = maxflow.Graph[float](n, int(a.size))
     g.add_nodes(n)
-    if a.size:
-        g.add_edges(a, b, pair_cap, np.zeros_like(pair_cap))
+    if a.size:  # int32 node ids: PyMaxflow converts int64 per element, 40 % slower
+        g.add_edges(a.astype(np.int32), b.astype(np.int32), pair_cap, np.zeros_like(pair_cap))
     g.add_grid_tedges(np.arange(n), u1 - m, u0 - m)
     g.maxflow()
     to_alpha = g.get_grid_segments(np.arange(n))  # True = sink side = α
