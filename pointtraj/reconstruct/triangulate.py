@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import CameraRig, undistort_normalized
+from ..camera import CameraRig, Projection, undistort_normalized
 from ..errors import ValidationError, check_array
 
 __all__ = [
@@ -955,6 +955,7 @@ def occlusion_test(
     depth_tolerance: float,
     *,
     cell_px: float | None = None,
+    projection: Projection | None = None,
 ) -> np.ndarray:
     """Find points hidden behind the frame's own reconstructed surface, per camera.
 
@@ -979,6 +980,8 @@ def occlusion_test(
         blur occlusion boundaries. Default: three times the median projected point spacing
         (``sqrt(bounding-box area / points)`` per camera), clipped to [2, 64] pixels, which
         adapts to the point density and image resolution.
+    projection : Projection, optional
+        ``rig.project(points)``, when the caller has it already.
 
     Returns
     -------
@@ -1008,7 +1011,9 @@ def occlusion_test(
     if cell_px is not None and not cell_px > 0:
         raise ValidationError(f"cell_px must be > 0, got {cell_px!r}")
     C, N = len(rig), X.shape[0]
-    proj = rig.project(X)
+    proj = rig.project(X) if projection is None else projection
+    if proj.depth.shape != (C, N):
+        raise ValidationError(f"projection: expected ({C}, {N}) depths, got {proj.depth.shape}")
     ok = proj.in_image  # (C, N), False for NaN points
     if cell_px is None:
         cell_px = _auto_cell_px(proj.pixels, ok)

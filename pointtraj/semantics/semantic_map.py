@@ -151,8 +151,11 @@ def geometric_visibility(
     if len(xyz) == 0:
         return V
     X = np.asarray(xyz, np.float64)
-    seen = rig.project(X).in_image.T  # (N, C) in front and inside the image
-    seen &= ~occlusion_test(rig, X, config.occlusion_depth_m, cell_px=config.occlusion_cell_px)
+    proj = rig.project(X)
+    occluded = occlusion_test(
+        rig, X, config.occlusion_depth_m, cell_px=config.occlusion_cell_px, projection=proj
+    )  # (N, C)
+    seen = proj.in_image.T & ~occluded  # (N, C) in front, inside the image, not occluded
     return np.where(seen, np.maximum(V, np.float32(config.unobserved_visibility)), V)
 
 
