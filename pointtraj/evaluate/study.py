@@ -269,16 +269,15 @@ def _summary_section(traj, metrics: dict) -> Section:
 
 
 def _ground_truth_section(
-    capture: Path, traj, smap, labels, folder: Path, cfg: EvaluateConfig, metrics: dict, progress
+    capture: Path, traj, truth, source: str, smap, labels, folder: Path, metrics: dict, progress
 ) -> Section:
     from ..session import Capture
-    from .groundtruth import surface_errors, true_labels
+    from .groundtruth import surface_errors
     from .metrics import label_accuracy
 
     rig = Capture.open(capture).rig.subset(traj.camera_names)
-    step = _tick(progress, "evaluate: ground truth", 2 * traj.num_frames)
+    step = _tick(progress, "evaluate: 3D error", traj.num_frames)
     err = surface_errors(capture, rig, traj, progress=step)
-    truth, source = true_labels(capture, traj, progress=step)
     err = np.where(np.isnan(err), 1.0, err)  # no surface near the point: far off
     metrics.update({"gt.error_m.median": _q(err, 50), "gt.error_m.p90": _q(err, 90)})
     lines = [
@@ -600,9 +599,13 @@ def evaluate_work(
     metrics: dict[str, Any] = {}
     sections = [_summary_section(traj, metrics)]
     gt = has_ground_truth(cap)
+    truth, source = None, ""
+    if gt:
+        step = _tick(progress, "evaluate: true labels", traj.num_frames)
+        truth, source = true_labels(cap, traj, progress=step)
     if gt and (smap is not None or labels is not None):
         sections.append(
-            _ground_truth_section(cap, traj, smap, labels, folder, cfg, metrics, progress)
+            _ground_truth_section(cap, traj, truth, source, smap, labels, folder, metrics, progress)
         )
     elif not gt:
         notes.append(
@@ -611,11 +614,11 @@ def evaluate_work(
     if smap is not None:
         sections.append(_temporal_section(smap, folder, metrics))
     # Affinity study: ground-truth labels where there are some, else the graph cut's.
-    study_labels, source = None, ""
-    if gt:
-        study_labels, source = true_labels(cap, traj)[0], "ground-truth"
+    study_labels, study_source = None, ""
+    if truth is not None:
+        study_labels, study_source = truth, "ground-truth"
     elif labels is not None:
-        study_labels, source = labels.labels, "graph-cut"
+        study_labels, study_source = labels.labels, "graph-cut"
     if study_labels is not None and traj.num_trajectories > 1:
         if affinity_config is None and wf.affinity.is_file():
             from ..affinity import load_affinity
@@ -630,7 +633,7 @@ def evaluate_work(
             _affinity_section(
                 traj,
                 study_labels,
-                source,
+                study_source,
                 cfg,
                 affinity_config or AffinityConfig(),
                 folder,
