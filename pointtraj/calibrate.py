@@ -119,6 +119,13 @@ class CalibrationOptions:
     min_observation_ratio : float
         A camera with fewer observations (2D points of the model) than this fraction of the
         median over the registered cameras is rejected.
+    retry_failed : bool
+        Give cameras that were rejected or not registered a second chance: their focal length
+        is set to the median over the calibrated cameras (relative to the image's longer side),
+        marked as a prior, and the mapper continues from the model. COLMAP's default initial
+        focal length, 1.2 x the longer side, is 2-2.5 times too long for wide-angle lenses and
+        webcams, where absolute pose estimation then fails or converges to a degenerate focal
+        length.
     """
 
     camera_model: str = "RADIAL"
@@ -135,6 +142,7 @@ class CalibrationOptions:
     outlier_error_ratio: float = 3.0
     outlier_error_px: float = 1.0
     min_observation_ratio: float = 0.1
+    retry_failed: bool = True
 
     def __post_init__(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
@@ -343,7 +351,7 @@ def estimate_rig_similarity(
     with_scale: bool = True,
     robust: bool = True,
     outlier_factor: float = 3.0,
-    min_outlier_rel: float = 0.02,
+    min_outlier_rel: float = 0.05,
     max_triplets: int = 2000,
 ) -> RigAlignment:
     """Similarity taking ``rig``'s world frame to ``reference``'s, robust to outlier cameras.
@@ -352,9 +360,10 @@ def estimate_rig_similarity(
     least-median-of-squares search (Rousseeuw 1984) over camera triplets picks the Umeyama
     similarity whose median centre residual is smallest (all triplets, or ``max_triplets``
     drawn with a fixed seed); cameras whose residual under it exceeds
-    ``max(outlier_factor * median residual, min_outlier_rel * spread)`` are outliers, where
-    ``spread`` is the RMS distance of the reference centres from their mean, and Umeyama's fit
-    is redone on the inliers. So one camera that SfM placed wrongly cannot skew the alignment
+    ``max(outlier_factor * (1 + 5 / (N - 3)) * median residual, min_outlier_rel * spread)``
+    are outliers, where ``1 + 5 / (N - 3)`` is Rousseeuw and Leroy's small-sample correction
+    of the median for N cameras and ``spread`` the RMS distance of the reference centres from
+    their mean, and Umeyama's fit is redone on the inliers. So one camera that SfM placed wrongly cannot skew the alignment
     of the others. With 3 shared centres the fit is Umeyama's on all of them; with 2 (or
     collinear centres) the rotation is the mean of the cameras' relative orientations and the
     scale the ratio of baselines.
@@ -367,11 +376,13 @@ def estimate_rig_similarity(
     robust : bool
         Search for outlier cameras (otherwise one least-squares fit on all shared centres).
     outlier_factor : float
-        Outlier threshold in multiples of the least-median residual (3 is about 4.6 standard
-        deviations of isotropic Gaussian centre noise, whose 3D norm has median 1.54 sigma).
+        Outlier threshold in multiples of the corrected least-median residual (for many
+        cameras, 3 is about 4.6 standard deviations of isotropic Gaussian centre noise, whose
+        3D norm has median 1.54 sigma).
     min_outlier_rel : float
         Floor of the outlier threshold as a fraction of the reference rig's spread, so that
-        cameras that are merely less accurate than the median are kept.
+        cameras that are merely less accurate than the median are kept (with 4 cameras the
+        triplet fit leaves all the misfit to the fourth).
     max_triplets : int
         Most camera triplets tried.
 
@@ -399,7 +410,10 @@ def estimate_rig_similarity(
         if found is not None:
             residual = np.linalg.norm(_apply(found, src.C) - dst.C, axis=1)  # (N,)
             spread = float(np.sqrt(np.mean(np.sum((dst.C - dst.C.mean(axis=0)) ** 2, axis=1))))
-            threshold = max(outlier_factor * float(np.median(residual)), min_outlier_rel * spread)
+            small = 1 + 5 / (len(common) - 3)  # Rousseeuw & Leroy (1987), p = 3 cameras
+            threshold = max(
+                outlier_factor * small * float(np.median(residual)), min_outlier_rel * spread
+            )
             inliers = residual <= threshold
     if inliers.sum() >= 3:
         try:
@@ -924,22 +938,39 @@ def calibrate_images(
     pycolmap.bundle_adjustment(rec, ba)
     cal = _calibration_from_reconstruction(rec, camera_names, counts, options)
     # Degenerate cameras (e.g. a focal length collapsed in the bundle adjustment) are taken out
-    # of the model, and the others adjusted again without them, until none is left.
+    # of the model, and the others adjusted again without them, until none is left. Then, once,
+    # the rejected and unregistered cameras are retried with the median focal length.
     rejected: dict[str, str] = {}
-    while bad := find_degenerate_cameras(cal, options):
-        rejected.update(bad)
-        if len(cal.rig) - len(bad) < 2:
-            raise CalibrationError(
-                f"only {len(cal.rig) - len(bad)} camera(s) registered with a plausible "
-                f"calibration; need at least 2 ({'; '.join(f'{k}: {v}' for k, v in bad.items())})"
-            )
-        say(f"rejecting degenerate camera(s) {', '.join(bad)} and adjusting again")
-        for image_id in list(rec.reg_image_ids()):
-            im = rec.images[image_id]
-            if im.name.split("/")[0] in bad:
-                rec.deregister_frame(im.frame_id)
+    retried = not options.retry_failed
+    while True:
+        bad = find_degenerate_cameras(cal, options)
+        if bad:
+            rejected.update(bad)
+            if len(cal.rig) - len(bad) < 2:
+                raise CalibrationError(
+                    f"only {len(cal.rig) - len(bad)} camera(s) registered with a plausible "
+                    "calibration; need at least 2 "
+                    f"({'; '.join(f'{k}: {v}' for k, v in bad.items())})"
+                )
+            say(f"rejecting degenerate camera(s) {', '.join(bad)} and adjusting again")
+            for image_id in list(rec.reg_image_ids()):
+                im = rec.images[image_id]
+                if im.name.split("/")[0] in bad:
+                    rec.deregister_frame(im.frame_id)
+            pycolmap.bundle_adjustment(rec, ba)
+            cal = _calibration_from_reconstruction(rec, camera_names, counts, options)
+            continue
+        missing = [n for n in camera_names if n not in cal.rig.names and per_camera[n]]
+        if retried or not missing:
+            break
+        retried = True
+        say(f"retrying camera(s) {', '.join(missing)} with the median focal length")
+        rec = _retry_registration(rec, cal, missing, database, image_dir, work_dir, mapper)
         pycolmap.bundle_adjustment(rec, ba)
         cal = _calibration_from_reconstruction(rec, camera_names, counts, options)
+        for name in cal.rig.names:
+            if rejected.pop(name, None) is not None:
+                logger.info("camera %s registered on retry", name)
     rec.write(str(_fresh_dir(work_dir / "model")))
     registered_elsewhere = {
         image_camera[i]
@@ -1053,6 +1084,53 @@ def find_degenerate_cameras(
         if why:
             out[name] = "degenerate: " + "; ".join(why)
     return out
+
+
+def _retry_registration(
+    rec,
+    cal: Calibration,
+    names: Sequence[str],
+    database: Path,
+    image_dir: Path,
+    work_dir: Path,
+    mapper,
+):
+    """Continue incremental mapping from ``rec`` after giving the cameras ``names`` the median
+    focal length of the calibrated ones as a prior (principal point at the image centre, no
+    distortion). Returns the model with the most registered images (``rec`` if none has more).
+    """
+    import pycolmap
+
+    ratio = float(
+        np.median((cal.rig.K[:, 0, 0] + cal.rig.K[:, 1, 1]) / 2 / cal.rig.sizes.max(axis=1))
+    )
+    db = pycolmap.Database.open(str(database))
+    try:
+        camera_of = {im.name.split("/")[0]: im.camera_id for im in db.read_all_images()}
+        for name in names:
+            cam = db.read_camera(camera_of[name])
+            params = np.zeros(len(cam.params))
+            params[cam.focal_length_idxs()] = ratio * max(cam.width, cam.height)
+            params[cam.principal_point_idxs()] = [cam.width / 2, cam.height / 2]
+            cam.params = params
+            cam.has_prior_focal_length = True
+            db.update_camera(cam)
+            if cam.camera_id in rec.cameras:
+                rec.cameras[cam.camera_id] = cam
+    finally:
+        db.close()
+    start = _fresh_dir(work_dir / "retry_input")
+    rec.write(str(start))
+    if logger.getEffectiveLevel() > logging.DEBUG:
+        pycolmap.logging.minloglevel = 2  # errors only from glog
+    models = pycolmap.incremental_mapping(
+        database, image_dir, _fresh_dir(work_dir / "retry"), mapper, input_path=start
+    )
+    best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
+    if best is None or best.num_reg_images() <= rec.num_reg_images():
+        logger.info("retry registered no further camera")
+        return rec
+    return best
 
 
 def _best_matches(counts: np.ndarray, ci: int, cal: Calibration) -> int:

@@ -478,3 +478,37 @@ def test_charuco_board_of_the_real_capture_is_detected():
     assert ok
     ids, xy = detect_charuco(frame[..., ::-1], board)
     assert len(ids) >= 10 and xy.shape == (len(ids), 2)
+
+
+@pytest.mark.slow
+def test_retry_registers_a_dropped_camera_with_the_median_focal(ring8_capture, tmp_path):
+    """A camera taken out of the model (as a degenerate one is) is registered again by
+    continuing the mapping with the median focal length as its prior."""
+    import pycolmap
+
+    from pointtraj.calibrate import _retry_registration, export_frames
+    from pointtraj.session import Capture
+
+    cap = Capture.open(ring8_capture)
+    list(export_frames(cap, [0], tmp_path / "images"))
+    cal = calibrate_images(tmp_path / "images", tmp_path / "w")
+    assert len(cal.rig) == 8
+    rec = pycolmap.Reconstruction(str(tmp_path / "w" / "model"))
+    for image_id in list(rec.reg_image_ids()):
+        if rec.images[image_id].name.startswith("cam05/"):
+            rec.deregister_frame(rec.images[image_id].frame_id)
+    assert rec.num_reg_images() == 7
+    mapper = pycolmap.IncrementalPipelineOptions()
+    mapper.num_threads = 2
+    redone = _retry_registration(
+        rec,
+        cal,
+        ["cam05"],
+        tmp_path / "w" / "database.db",
+        tmp_path / "images",
+        tmp_path / "w",
+        mapper,
+    )
+    assert redone.num_reg_images() == 8
+    names = {redone.images[i].name.split("/")[0] for i in redone.reg_image_ids()}
+    assert "cam05" in names
