@@ -357,6 +357,16 @@ def test_calibrate_charuco_recovers_intrinsics_and_poses(tmp_path):
     assert cmp.rotation_deg.max() < 0.3 and cmp.centre_m.max() < 0.01
     with pytest.raises(ValidationError, match="lens"):
         calibrate_charuco(dets, board, rig.names, [tuple(s) for s in rig.sizes], lens="odd")
+    # Distortion beyond k1 is held at 0 for cameras whose board corners stay near the centre
+    # (regression: caliscope's cam_3 got k2 = +2.78 from corners within 0.3 of the
+    # half-diagonal, 761 px of distortion difference towards the image corners).
+    sizes = [tuple(s) for s in rig.sizes]
+    free, _ = calibrate_charuco(dets, board, rig.names, sizes, min_k2_coverage=0.0)
+    held, stats = calibrate_charuco(dets, board, rig.names, sizes, min_k2_coverage=1.0)
+    assert np.all(held.rig.dist[:, 1] == 0) and np.all(free.rig.dist[:, 1] != 0)
+    assert "k1 only" in held.notes[-1] and all(n in held.notes[-1] for n in rig.names)
+    assert 0 < stats["coverage_c0"] < 1
+    assert compare_rigs(held.rig, rig).rotation_deg.max() < 0.3
 
 
 # ---------------------------------------------------------------------------------- pycolmap
