@@ -363,10 +363,10 @@ def estimate_rig_similarity(
     ``max(outlier_factor * (1 + 5 / (N - 3)) * median residual, min_outlier_rel * spread)``
     are outliers, where ``1 + 5 / (N - 3)`` is Rousseeuw and Leroy's small-sample correction
     of the median for N cameras and ``spread`` the RMS distance of the reference centres from
-    their mean, and Umeyama's fit is redone on the inliers. So one camera that SfM placed wrongly cannot skew the alignment
-    of the others. With 3 shared centres the fit is Umeyama's on all of them; with 2 (or
-    collinear centres) the rotation is the mean of the cameras' relative orientations and the
-    scale the ratio of baselines.
+    their mean, and Umeyama's fit is redone on the inliers. So one camera that SfM placed
+    wrongly cannot skew the alignment of the others. With 3 shared centres the fit is
+    Umeyama's on all of them; with 2 (or collinear centres) the rotation is the mean of the
+    cameras' relative orientations and the scale the ratio of baselines.
 
     Parameters
     ----------
@@ -526,7 +526,7 @@ def _lmeds_similarity(
         triplets = np.array(list(combinations(range(n), 3)))  # (T, 3)
     else:
         rng = np.random.default_rng(0)
-        triplets = np.stack([rng.choice(n, 3, replace=False) for _ in range(max_triplets)])
+        triplets = np.argsort(rng.random((max_triplets, n)), axis=1)[:, :3]  # (T, 3) distinct
     s, R, t, ok = _umeyama_batch(src[triplets], dst[triplets], with_scale)
     if not ok.any():
         return None
