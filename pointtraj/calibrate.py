@@ -12,13 +12,19 @@ in a bundle adjustment. :func:`calibrate_images` does this with pycolmap on the 
    ``x_cam = R X + t``; COLMAP's pixel origin is the top-left image corner, OpenCV's the centre
    of the top-left pixel, so principal points move by -0.5 px. A static rig gives one pose per
    frame for each camera; they are averaged (chordal mean of rotations, mean of centres) and
-   their spread is reported.
+   their spread is reported;
+5. rejection of degenerate cameras (:func:`find_degenerate_cameras`: an implausible focal
+   length or distortion, or a reprojection error or observation count far from the other
+   cameras'): they are taken out of the model, named as failed with the reason, and the rest
+   is adjusted again.
 
 SfM fixes the rig only up to a similarity. The metric scale and world frame come from what the
 user knows: a distance between two camera centres (:func:`scale_rig_by_distance`), a ChArUco
 board seen by the cameras (:func:`align_rig_to_charuco`), or an existing rig
-(:func:`align_rig_to`, Umeyama's similarity between camera centres). For footage where SfM
-cannot register the cameras (few, textureless views of a moving board),
+(:func:`align_rig_to`: Umeyama's similarity between camera centres, after a
+least-median-of-squares search that leaves out cameras whose centres disagree with the
+others'). For footage where SfM cannot register the cameras (few, textureless views of a
+moving board),
 :func:`calibrate_charuco` calibrates from ChArUco corners alone: OpenCV's planar calibration per
 camera, relative poses from shared board views, then a joint bundle adjustment of all intrinsics,
 camera poses and board poses with the board's known geometry.
@@ -47,11 +53,14 @@ __all__ = [
     "RigComparison",
     "align_rig_to",
     "align_rig_to_charuco",
+    "estimate_rig_similarity",
+    "RigAlignment",
     "calibrate_charuco",
     "calibrate_images",
     "compare_rigs",
     "detect_charuco",
     "export_frames",
+    "find_degenerate_cameras",
     "plot_match_graph",
     "scale_rig_by_distance",
     "transform_rig",
@@ -97,6 +106,26 @@ class CalibrationOptions:
         CPU threads for pycolmap.
     seed : int
         Mapper random seed.
+    min_focal_ratio, max_focal_ratio : float
+        Plausible focal lengths, as multiples of the image's longer side (COLMAP's mapper
+        defaults 0.1 and 10, i.e. fields of view of about 157 to 5.7 degrees); a camera whose
+        final focal length is outside is rejected as degenerate.
+    max_distortion : float
+        Largest plausible magnitude of a distortion coefficient k1 k2 p1 p2 k3 (COLMAP's
+        ``max_extra_param``).
+    outlier_error_ratio, outlier_error_px : float
+        A camera whose mean reprojection error exceeds both ``outlier_error_ratio`` times the
+        median over the registered cameras and ``outlier_error_px`` is rejected.
+    min_observation_ratio : float
+        A camera with fewer observations (2D points of the model) than this fraction of the
+        median over the registered cameras is rejected.
+    retry_failed : bool
+        Give cameras that were rejected or not registered a second chance: their focal length
+        is set to the median over the calibrated cameras (relative to the image's longer side),
+        marked as a prior, and the mapper continues from the model. COLMAP's default initial
+        focal length, 1.2 x the longer side, is 2-2.5 times too long for wide-angle lenses and
+        webcams, where absolute pose estimation then fails or converges to a degenerate focal
+        length.
     """
 
     camera_model: str = "RADIAL"
@@ -107,6 +136,13 @@ class CalibrationOptions:
     refine_principal_point: bool = False
     num_threads: int = 2
     seed: int = 0
+    min_focal_ratio: float = 0.1
+    max_focal_ratio: float = 10.0
+    max_distortion: float = 1.0
+    outlier_error_ratio: float = 3.0
+    outlier_error_px: float = 1.0
+    min_observation_ratio: float = 0.1
+    retry_failed: bool = True
 
     def __post_init__(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
@@ -117,6 +153,18 @@ class CalibrationOptions:
         for name in ("max_image_size", "max_num_features", "min_num_matches", "num_threads"):
             if getattr(self, name) < 1:
                 raise ValidationError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 < self.min_focal_ratio < self.max_focal_ratio:
+            raise ValidationError(
+                "min_focal_ratio and max_focal_ratio must satisfy 0 < min < max, got "
+                f"{self.min_focal_ratio} and {self.max_focal_ratio}"
+            )
+        for name in ("max_distortion", "outlier_error_ratio", "outlier_error_px"):
+            if not getattr(self, name) > 0:
+                raise ValidationError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0 <= self.min_observation_ratio < 1:
+            raise ValidationError(
+                f"min_observation_ratio must be in [0, 1), got {self.min_observation_ratio}"
+            )
 
 
 @dataclass
@@ -271,13 +319,53 @@ def transform_rig(rig: CameraRig, s: float, R: np.ndarray, t: np.ndarray) -> Cam
     return CameraRig(cams)
 
 
-def align_rig_to(
-    rig: CameraRig, reference: CameraRig, with_scale: bool = True
-) -> tuple[CameraRig, tuple[float, np.ndarray, np.ndarray]]:
-    """Move ``rig`` into ``reference``'s world frame (similarity between camera centres).
+@dataclass(frozen=True)
+class RigAlignment:
+    """A similarity between two rigs' world frames, fitted robustly to camera centres.
 
-    Cameras are paired by name. With 3 or more non-collinear shared centres the similarity is
-    Umeyama's fit of the centres; with 2 (or collinear centres) the rotation is the mean of the
+    Attributes
+    ----------
+    similarity : (s, R, t)
+        ``X_reference = s R X_rig + t``.
+    inliers : list of str
+        Shared cameras the final fit used.
+    outliers : list of str
+        Shared cameras left out of the fit (their centres disagree with the others').
+    residual_m : dict of str to float
+        Per shared camera, ``|s R C_rig + t - C_reference|`` under the final similarity (units of
+        ``reference``).
+    threshold_m : float
+        Residual above which a camera is an outlier (0 when no robust fit was made).
+    """
+
+    similarity: tuple[float, np.ndarray, np.ndarray]
+    inliers: list[str]
+    outliers: list[str]
+    residual_m: dict[str, float]
+    threshold_m: float = 0.0
+
+
+def estimate_rig_similarity(
+    rig: CameraRig,
+    reference: CameraRig,
+    with_scale: bool = True,
+    robust: bool = True,
+    outlier_factor: float = 3.0,
+    min_outlier_rel: float = 0.05,
+    max_triplets: int = 2000,
+) -> RigAlignment:
+    """Similarity taking ``rig``'s world frame to ``reference``'s, robust to outlier cameras.
+
+    Cameras are paired by name. With 4 or more non-collinear shared centres and ``robust``, a
+    least-median-of-squares search (Rousseeuw 1984) over camera triplets picks the Umeyama
+    similarity whose median centre residual is smallest (all triplets, or ``max_triplets``
+    drawn with a fixed seed); cameras whose residual under it exceeds
+    ``max(outlier_factor * (1 + 5 / (N - 3)) * median residual, min_outlier_rel * spread)``
+    are outliers, where ``1 + 5 / (N - 3)`` is Rousseeuw and Leroy's small-sample correction
+    of the median for N cameras and ``spread`` the RMS distance of the reference centres from
+    their mean, and Umeyama's fit is redone on the inliers. So one camera that SfM placed
+    wrongly cannot skew the alignment of the others. With 3 shared centres the fit is
+    Umeyama's on all of them; with 2 (or collinear centres) the rotation is the mean of the
     cameras' relative orientations and the scale the ratio of baselines.
 
     Parameters
@@ -285,12 +373,22 @@ def align_rig_to(
     rig, reference : CameraRig
     with_scale : bool
         Estimate the scale (True for SfM output).
+    robust : bool
+        Search for outlier cameras (otherwise one least-squares fit on all shared centres).
+    outlier_factor : float
+        Outlier threshold in multiples of the corrected least-median residual (for many
+        cameras, 3 is about 4.6 standard deviations of isotropic Gaussian centre noise, whose
+        3D norm has median 1.54 sigma).
+    min_outlier_rel : float
+        Floor of the outlier threshold as a fraction of the reference rig's spread, so that
+        cameras that are merely less accurate than the median are kept (with 4 cameras the
+        triplet fit leaves all the misfit to the fourth).
+    max_triplets : int
+        Most camera triplets tried.
 
     Returns
     -------
-    aligned : CameraRig
-    similarity : (s, R, t)
-        ``X_reference = s R X_rig + t``.
+    RigAlignment
 
     Raises
     ------
@@ -305,14 +403,138 @@ def align_rig_to(
         )
     src = rig.subset(common)
     dst = reference.subset(common)
-    if len(common) >= 3:
+    inliers = np.ones(len(common), bool)
+    threshold = 0.0
+    if len(common) >= 4 and robust:
+        found = _lmeds_similarity(src.C, dst.C, with_scale, max_triplets)
+        if found is not None:
+            residual = np.linalg.norm(_apply(found, src.C) - dst.C, axis=1)  # (N,)
+            spread = float(np.sqrt(np.mean(np.sum((dst.C - dst.C.mean(axis=0)) ** 2, axis=1))))
+            small = 1 + 5 / (len(common) - 3)  # Rousseeuw & Leroy (1987), p = 3 cameras
+            threshold = max(
+                outlier_factor * small * float(np.median(residual)), min_outlier_rel * spread
+            )
+            inliers = residual <= threshold
+    if inliers.sum() >= 3:
         try:
-            sim = umeyama(src.C, dst.C, with_scale)
+            sim = umeyama(src.C[inliers], dst.C[inliers], with_scale)
         except ValidationError:
-            sim = _align_two(src, dst, with_scale)
+            kept = [n for n, ok in zip(common, inliers, strict=True) if ok]
+            sim = _align_two(src.subset(kept), dst.subset(kept), with_scale)
     else:
         sim = _align_two(src, dst, with_scale)
+    residual = np.linalg.norm(_apply(sim, src.C) - dst.C, axis=1)  # (N,)
+    outliers = [n for n, ok in zip(common, inliers, strict=True) if not ok]
+    if outliers:
+        logger.warning(
+            "alignment: left out %d of %d cameras whose centres disagree with the others "
+            "(residual > %.3g): %s",
+            len(outliers),
+            len(common),
+            threshold,
+            ", ".join(
+                f"{n} ({r:.3g})"
+                for n, r, ok in zip(common, residual, inliers, strict=True)
+                if not ok
+            ),
+        )
+    return RigAlignment(
+        sim,
+        [n for n, ok in zip(common, inliers, strict=True) if ok],
+        outliers,
+        {n: float(r) for n, r in zip(common, residual, strict=True)},
+        threshold,
+    )
+
+
+def align_rig_to(
+    rig: CameraRig, reference: CameraRig, with_scale: bool = True, robust: bool = True
+) -> tuple[CameraRig, tuple[float, np.ndarray, np.ndarray]]:
+    """Move ``rig`` into ``reference``'s world frame (similarity between camera centres).
+
+    The similarity is :func:`estimate_rig_similarity`'s: cameras are paired by name and, with 4
+    or more shared cameras, cameras whose centres disagree with the others' are left out of the
+    fit (logged as a warning; use :func:`estimate_rig_similarity` to get their names).
+
+    Parameters
+    ----------
+    rig, reference : CameraRig
+    with_scale : bool
+        Estimate the scale (True for SfM output).
+    robust : bool
+        Leave outlier cameras out of the fit.
+
+    Returns
+    -------
+    aligned : CameraRig
+    similarity : (s, R, t)
+        ``X_reference = s R X_rig + t``.
+
+    Raises
+    ------
+    ValidationError
+        If fewer than 2 cameras are shared by name.
+    """
+    sim = estimate_rig_similarity(rig, reference, with_scale, robust).similarity
     return transform_rig(rig, *sim), sim
+
+
+def _apply(sim: tuple[float, np.ndarray, np.ndarray], X: np.ndarray) -> np.ndarray:
+    """``s R X + t`` for (N, 3) points."""
+    s, R, t = sim
+    return s * X @ R.T + t
+
+
+def _umeyama_batch(src: np.ndarray, dst: np.ndarray, with_scale: bool):
+    """Umeyama similarities of (T, k, 3) point sets; also a (T,) mask of non-degenerate sets."""
+    mu_s, mu_d = src.mean(axis=1, keepdims=True), dst.mean(axis=1, keepdims=True)  # (T, 1, 3)
+    a, b = src - mu_s, dst - mu_d
+    cov = np.einsum("tki,tkj->tij", b, a) / src.shape[1]  # (T, 3, 3)
+    U, S, Vt = np.linalg.svd(cov)
+    ok = S[:, 1] > 1e-12 * np.maximum(S[:, 0], 1e-300)
+    d = np.sign(np.linalg.det(U) * np.linalg.det(Vt))  # (T,)
+    D = np.ones((len(src), 3))
+    D[:, 2] = np.where(d < 0, -1.0, 1.0)
+    R = np.einsum("tij,tj,tjk->tik", U, D, Vt)  # (T, 3, 3)
+    var_s = np.sum(a**2, axis=(1, 2)) / src.shape[1]  # (T,)
+    if with_scale:
+        s = np.sum(S * D, axis=1) / np.where(var_s > 0, var_s, 1.0)
+    else:
+        s = np.ones(len(src))
+    t = mu_d[:, 0] - s[:, None] * np.einsum("tij,tj->ti", R, mu_s[:, 0])  # (T, 3)
+    return s, R, t, ok & (var_s > 0)
+
+
+def _lmeds_similarity(
+    src: np.ndarray, dst: np.ndarray, with_scale: bool, max_triplets: int
+) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """Least-median-of-squares similarity ``dst ≈ s R src + t`` from point triplets.
+
+    Parameters
+    ----------
+    src, dst : (N, 3) float ndarray
+        N >= 4.
+
+    Returns
+    -------
+    (s, R, t), or None if every triplet is degenerate.
+    """
+    from itertools import combinations
+
+    n = len(src)
+    if n * (n - 1) * (n - 2) // 6 <= max_triplets:
+        triplets = np.array(list(combinations(range(n), 3)))  # (T, 3)
+    else:
+        rng = np.random.default_rng(0)
+        triplets = np.argsort(rng.random((max_triplets, n)), axis=1)[:, :3]  # (T, 3) distinct
+    s, R, t, ok = _umeyama_batch(src[triplets], dst[triplets], with_scale)
+    if not ok.any():
+        return None
+    s, R, t = s[ok], R[ok], t[ok]
+    moved = s[:, None, None] * np.einsum("tij,nj->tni", R, src) + t[:, None]  # (T, N, 3)
+    med = np.median(np.sum((moved - dst) ** 2, axis=2), axis=1)  # (T,)
+    best = int(np.argmin(med))
+    return float(s[best]), R[best], t[best]
 
 
 def _align_two(
@@ -400,6 +622,9 @@ class RigComparison:
         parameterised.
     similarity : (s, R, t)
         ``X_ref = s R X_est + t`` used for the alignment.
+    alignment_outliers : list of str
+        Shared cameras left out of the similarity fit (see :func:`estimate_rig_similarity`);
+        they are still compared.
     """
 
     names: list[str]
@@ -409,6 +634,7 @@ class RigComparison:
     principal_px: np.ndarray
     distortion_px: np.ndarray
     similarity: tuple[float, np.ndarray, np.ndarray]
+    alignment_outliers: list[str] = field(default_factory=list)
 
     def summary(self) -> dict[str, float]:
         """Maxima and means of the per-camera differences."""
@@ -423,25 +649,34 @@ class RigComparison:
             "principal_px_max": float(self.principal_px.max()),
             "distortion_px_rms_max": float(self.distortion_px.max()),
             "scale": float(self.similarity[0]),
+            "alignment_outliers": float(len(self.alignment_outliers)),
         }
 
 
-def compare_rigs(estimate: CameraRig, reference: CameraRig, align: bool = True) -> RigComparison:
+def compare_rigs(
+    estimate: CameraRig, reference: CameraRig, align: bool = True, robust: bool = True
+) -> RigComparison:
     """Compare two rigs camera by camera (paired by name), optionally after a similarity.
 
     Parameters
     ----------
     estimate, reference : CameraRig
     align : bool
-        First align ``estimate`` to ``reference`` with :func:`align_rig_to`.
+        First align ``estimate`` to ``reference`` with :func:`estimate_rig_similarity`.
+    robust : bool
+        Leave cameras whose centres disagree with the others' out of the alignment (they are
+        still compared, and named in ``alignment_outliers``).
 
     Returns
     -------
     RigComparison
     """
     sim: tuple[float, np.ndarray, np.ndarray] = (1.0, np.eye(3), np.zeros(3))
+    outliers: list[str] = []
     if align:
-        estimate, sim = align_rig_to(estimate, reference)
+        fit = estimate_rig_similarity(estimate, reference, robust=robust)
+        sim, outliers = fit.similarity, fit.outliers
+        estimate = transform_rig(estimate, *sim)
     names = [n for n in estimate.names if n in reference.names]
     if not names:
         raise ValidationError("compare: the rigs share no camera names")
@@ -452,7 +687,7 @@ def compare_rigs(estimate: CameraRig, reference: CameraRig, align: bool = True) 
     f_ref = (ref.K[:, 0, 0] + ref.K[:, 1, 1]) / 2
     pp = np.linalg.norm(est.K[:, :2, 2] - ref.K[:, :2, 2], axis=1)
     dist_px = np.array([_distortion_difference(a, b) for a, b in zip(est, ref, strict=True)])
-    return RigComparison(names, rot, centre, (f_est - f_ref) / f_ref, pp, dist_px, sim)
+    return RigComparison(names, rot, centre, (f_est - f_ref) / f_ref, pp, dist_px, sim, outliers)
 
 
 def _distortion_difference(a: Camera, b: Camera, grid: int = 8) -> float:
@@ -701,9 +936,42 @@ def calibrate_images(
     if logger.getEffectiveLevel() > logging.DEBUG:
         pycolmap.logging.minloglevel = 2
     pycolmap.bundle_adjustment(rec, ba)
-    rec.write(str(_fresh_dir(work_dir / "model")))
-
     cal = _calibration_from_reconstruction(rec, camera_names, counts, options)
+    # Degenerate cameras (e.g. a focal length collapsed in the bundle adjustment) are taken out
+    # of the model, and the others adjusted again without them, until none is left. Then, once,
+    # the rejected and unregistered cameras are retried with the median focal length.
+    rejected: dict[str, str] = {}
+    retried = not options.retry_failed
+    while True:
+        bad = find_degenerate_cameras(cal, options)
+        if bad:
+            rejected.update(bad)
+            if len(cal.rig) - len(bad) < 2:
+                raise CalibrationError(
+                    f"only {len(cal.rig) - len(bad)} camera(s) registered with a plausible "
+                    "calibration; need at least 2 "
+                    f"({'; '.join(f'{k}: {v}' for k, v in bad.items())})"
+                )
+            say(f"rejecting degenerate camera(s) {', '.join(bad)} and adjusting again")
+            for image_id in list(rec.reg_image_ids()):
+                im = rec.images[image_id]
+                if im.name.split("/")[0] in bad:
+                    rec.deregister_frame(im.frame_id)
+            pycolmap.bundle_adjustment(rec, ba)
+            cal = _calibration_from_reconstruction(rec, camera_names, counts, options)
+            continue
+        missing = [n for n in camera_names if n not in cal.rig.names and per_camera[n]]
+        if retried or not missing:
+            break
+        retried = True
+        say(f"retrying camera(s) {', '.join(missing)} with the median focal length")
+        rec = _retry_registration(rec, cal, missing, database, image_dir, work_dir, mapper)
+        pycolmap.bundle_adjustment(rec, ba)
+        cal = _calibration_from_reconstruction(rec, camera_names, counts, options)
+        for name in cal.rig.names:
+            if rejected.pop(name, None) is not None:
+                logger.info("camera %s registered on retry", name)
+    rec.write(str(_fresh_dir(work_dir / "model")))
     registered_elsewhere = {
         image_camera[i]
         for other in ranked[1:]
@@ -738,6 +1006,7 @@ def calibrate_images(
                     f"not in the model: {n} verified matches with registered cameras, but "
                     "registration (absolute pose) failed"
                 )
+    cal.failed.update(rejected)
     for name, why in cal.failed.items():
         logger.warning("camera %s not calibrated: %s", name, why)
     if len(cal.rig) < 2:
@@ -746,6 +1015,122 @@ def calibrate_images(
             f"({'; '.join(f'{k}: {v}' for k, v in cal.failed.items())})"
         )
     return cal
+
+
+def find_degenerate_cameras(
+    cal: Calibration, options: CalibrationOptions | None = None
+) -> dict[str, str]:
+    """Registered cameras whose calibration is implausible, with the reason.
+
+    A camera is degenerate when its focal length is outside
+    ``[min_focal_ratio, max_focal_ratio]`` times its image's longer side, when a distortion
+    coefficient exceeds ``max_distortion``, when its mean reprojection error is not finite or
+    exceeds both ``outlier_error_ratio`` times the median over the registered cameras and
+    ``outlier_error_px``, or when it has fewer than ``min_observation_ratio`` times the median
+    number of observations.
+
+    Parameters
+    ----------
+    cal : Calibration
+    options : CalibrationOptions, optional
+        Thresholds (defaults if omitted).
+
+    Returns
+    -------
+    dict of str to str
+        Camera name -> reason, in rig order; empty when every camera is plausible.
+    """
+    options = options or CalibrationOptions()
+    rig = cal.rig
+    if len(rig) == 0:
+        return {}
+    longer = np.max(np.asarray(rig.sizes, float), axis=1)  # (C,)
+    focal = (rig.K[:, 0, 0] + rig.K[:, 1, 1]) / 2  # (C,)
+    ratio = focal / longer
+    coef = np.abs(rig.dist[:, :5]).max(axis=1)  # (C,) k1 k2 p1 p2 k3
+    errors = np.array([cal.errors.get(n, np.nan) for n in rig.names])  # (C,)
+    nobs = np.array([cal.observations.get(n, 0) for n in rig.names], float)  # (C,)
+    med_err = float(np.median(errors[np.isfinite(errors)])) if np.isfinite(errors).any() else 0.0
+    med_obs = float(np.median(nobs))
+    out: dict[str, str] = {}
+    for c, name in enumerate(rig.names):
+        why = []
+        if not options.min_focal_ratio <= ratio[c] <= options.max_focal_ratio:
+            why.append(
+                f"focal length {focal[c]:.4g} px is {ratio[c]:.3g} x the image's longer side "
+                f"{longer[c]:.0f} px (plausible: {options.min_focal_ratio:g} to "
+                f"{options.max_focal_ratio:g})"
+            )
+        if coef[c] > options.max_distortion:
+            why.append(
+                f"distortion coefficient of magnitude {coef[c]:.3g} "
+                f"(plausible: <= {options.max_distortion:g})"
+            )
+        if not np.isfinite(errors[c]):
+            why.append("no reprojection error (no observations)")
+        elif (
+            errors[c] > options.outlier_error_ratio * med_err
+            and errors[c] > options.outlier_error_px
+        ):
+            why.append(
+                f"mean reprojection error {errors[c]:.3g} px is > {options.outlier_error_ratio:g}"
+                f" x the median {med_err:.3g} px"
+            )
+        if nobs[c] < options.min_observation_ratio * med_obs:
+            why.append(
+                f"{int(nobs[c])} observations, < {options.min_observation_ratio:g} x the median "
+                f"{med_obs:.0f}"
+            )
+        if why:
+            out[name] = "degenerate: " + "; ".join(why)
+    return out
+
+
+def _retry_registration(
+    rec,
+    cal: Calibration,
+    names: Sequence[str],
+    database: Path,
+    image_dir: Path,
+    work_dir: Path,
+    mapper,
+):
+    """Continue incremental mapping from ``rec`` after giving the cameras ``names`` the median
+    focal length of the calibrated ones as a prior (principal point at the image centre, no
+    distortion). Returns the model with the most registered images (``rec`` if none has more).
+    """
+    import pycolmap
+
+    ratio = float(
+        np.median((cal.rig.K[:, 0, 0] + cal.rig.K[:, 1, 1]) / 2 / cal.rig.sizes.max(axis=1))
+    )
+    db = pycolmap.Database.open(str(database))
+    try:
+        camera_of = {im.name.split("/")[0]: im.camera_id for im in db.read_all_images()}
+        for name in names:
+            cam = db.read_camera(camera_of[name])
+            params = np.zeros(len(cam.params))
+            params[cam.focal_length_idxs()] = ratio * max(cam.width, cam.height)
+            params[cam.principal_point_idxs()] = [cam.width / 2, cam.height / 2]
+            cam.params = params
+            cam.has_prior_focal_length = True
+            db.update_camera(cam)
+            if cam.camera_id in rec.cameras:
+                rec.cameras[cam.camera_id] = cam
+    finally:
+        db.close()
+    start = _fresh_dir(work_dir / "retry_input")
+    rec.write(str(start))
+    if logger.getEffectiveLevel() > logging.DEBUG:
+        pycolmap.logging.minloglevel = 2  # errors only from glog
+    models = pycolmap.incremental_mapping(
+        database, image_dir, _fresh_dir(work_dir / "retry"), mapper, input_path=start
+    )
+    best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
+    if best is None or best.num_reg_images() <= rec.num_reg_images():
+        logger.info("retry registered no further camera")
+        return rec
+    return best
 
 
 def _best_matches(counts: np.ndarray, ci: int, cal: Calibration) -> int:
@@ -1038,6 +1423,7 @@ def calibrate_charuco(
     sizes: Sequence[tuple[int, int]],
     min_corners: int = 6,
     lens: str = "simple",
+    min_k2_coverage: float = 0.5,
 ) -> tuple[Calibration, dict[str, float]]:
     """Calibrate a rig from ChArUco corners alone (when feature-based SfM cannot register).
 
@@ -1051,6 +1437,13 @@ def calibrate_charuco(
 
     The world frame is the board in the frame where most cameras see it.
 
+    Higher-order radial terms are only constrained where the board was seen: for a camera whose
+    board corners stay within ``min_k2_coverage`` of the half-diagonal from the image centre,
+    k2 (and k3) are held at 0. Otherwise k2 is fitted to the central part of the image and
+    extrapolates wildly towards the corners (caliscope's cam_3, corners within 0.33 of the
+    half-diagonal: k2 = +2.78, 761 px RMS distortion difference from caliscope's calibration
+    over the image; 82 px with k1 alone).
+
     Parameters
     ----------
     detections : mapping (camera index, frame) -> (ids (n,), corners (n, 2))
@@ -1063,12 +1456,17 @@ def calibrate_charuco(
         ``full``: fx fy cx cy k1 k2 p1 p2 k3 per camera. ``simple``: fx fy k1 k2, with the
         principal point at the image centre and p1 = p2 = k3 = 0; far better conditioned when
         the board covers little of each image.
+    min_k2_coverage : float
+        Board coverage (largest distance of a detected corner from the image centre, over the
+        half-diagonal) below which k2 and k3 are held at 0; 0 fits them for every camera.
 
     Returns
     -------
     calibration : Calibration
+        Its notes name the cameras calibrated with k1 alone.
     stats : dict
-        ``views`` used, ``rms_px`` after the adjustment, ``rms_px_initial``.
+        ``views`` used, ``rms_px`` after the adjustment, ``rms_px_initial``, and
+        ``coverage_<camera>`` per calibrated camera.
     """
     import cv2
     from scipy.optimize import least_squares
@@ -1084,6 +1482,8 @@ def calibrate_charuco(
     }
     K0, d0, board_pose = [], [], {}
     failed: dict[str, str] = {}
+    coverage: dict[int, float] = {}
+    k1_only: list[int] = []
     for c in range(C):
         keys = sorted(k for k in views if k[0] == c)
         if len(keys) < 3:
@@ -1100,6 +1500,11 @@ def calibrate_charuco(
         flags = cv2.CALIB_USE_INTRINSIC_GUESS
         if lens == "simple":
             flags |= cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3
+        reach = np.linalg.norm(np.concatenate(imgp) - K_init[:2, 2], axis=1)  # (n,)
+        coverage[c] = float(reach.max() / np.hypot(w / 2, h / 2))
+        if coverage[c] < min_k2_coverage:
+            flags |= cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
+            k1_only.append(c)
         _, K, d, rvecs, tvecs = cv2.calibrateCamera(
             objp, imgp, (int(w), int(h)), K_init, np.zeros(5), flags=flags
         )
@@ -1207,6 +1612,9 @@ def calibrate_charuco(
     if lens == "simple":
         for i in range(NC):  # cx cy p1 p2 k3 stay at their initial values
             free[i * (n_int + 6) + np.array([2, 3, 6, 7, 8])] = False
+    for i in range(NC):
+        if placed[i] in k1_only:  # k2 k3 stay at 0
+            free[i * (n_int + 6) + np.array([5, 8])] = False
 
     def residuals_free(z: np.ndarray) -> np.ndarray:
         x = x0.copy()
@@ -1243,6 +1651,7 @@ def calibrate_charuco(
         "views": float(len(obs)),
         "rms_px_initial": float(np.sqrt(np.mean(r0**2) * 2)),
         "rms_px": float(np.sqrt(np.mean(err**2))),
+        **{f"coverage_{camera_names[c]}": v for c, v in coverage.items()},
     }
     cal = Calibration(
         rig=CameraRig(cams),
@@ -1256,6 +1665,12 @@ def calibrate_charuco(
             f"ChArUco calibration: {len(obs)} board views, world = board in frame {frames[f_ref]}"
         ],
     )
+    if k1_only:
+        cal.notes.append(
+            "radial distortion k1 only (board corners within "
+            f"{min_k2_coverage:g} of the half-diagonal): "
+            + ", ".join(f"{camera_names[c]} ({coverage[c]:.2f})" for c in k1_only)
+        )
     return cal, stats
 
 

@@ -221,8 +221,15 @@ def _set_frame(result, cal_lib, scale_distance, board, detections, align_to):
     if align_to is not None:
         from .rigio import load_rig
 
-        rig, (s, _, _) = cal_lib.align_rig_to(result.rig, load_rig(align_to))
-        return result.with_rig(rig, f"aligned to {align_to} (similarity, scale {s:.4g})")
+        fit = cal_lib.estimate_rig_similarity(result.rig, load_rig(align_to))
+        rig = cal_lib.transform_rig(result.rig, *fit.similarity)
+        note = f"aligned to {align_to} (similarity, scale {fit.similarity[0]:.4g}"
+        if fit.outliers:
+            note += (
+                f"; left out of the fit, centres disagree by > {fit.threshold_m:.3g}: "
+                + ", ".join(f"{n} ({fit.residual_m[n]:.3g})" for n in fit.outliers)
+            )
+        return result.with_rig(rig, note + ")")
     click.echo(
         "warning: no --scale-distance, --charuco or --align-to: scale and world frame are "
         "arbitrary",

@@ -2,19 +2,22 @@
 
 The paper (Section 6, Figure 4b) calls a rig a "3D pixel continuum" and quotes its pixel density:
 6.4 pixels/cm³ on average and more than 60 at the centre of the stage. The paper does not define
-the quantity, so we compute the candidates side by side; ``docs/rig_density.md`` shows that the
-paper's mean is ``global`` and its centre figure ``projected_max`` (:meth:`RigCoverage.report`
-prints those two):
+the quantity, so we compute the candidates side by side; ``docs/rig_density.md`` gives the
+definitions, the figures of the ``paper69`` preset and why they differ from the paper's
+(:meth:`RigCoverage.report` prints ``global`` as the mean and ``projected_max`` at the centre):
 
-``projected`` (``density``)
-    For each camera that sees the voxel centre, the image area in pixels covered by a 1 cm
-    cube (face-on) at that depth, ``fx * fy * (1 cm)^2 / d^2``, summed over the cameras: the
-    number of pixel measurements of a 1 cm³ cube. It grows as 1/d² towards each camera.
-``projected_max`` (``density_max``)
+``projected`` (``density``), px/cm²
+    For each camera that sees the voxel centre, the image area in pixels covered by a 1 cm x
+    1 cm patch facing it at that depth, ``fx * fy * (1 cm)^2 / d^2`` (``d`` the depth along
+    the optical axis), summed over the cameras: the pixels imaging a face of a 1 cm cube. It
+    is an area density, so its unit is px/cm², not px/cm³, and it grows as 1/d² towards each
+    camera.
+``projected_max`` (``density_max``), px/cm²
     The same for the best single camera.
-``global``
+``global``, px/cm³
     The pixels of all cameras whose rays enter the volume, divided by the volume in cm³: one
-    number for the rig (total pixels per unit volume).
+    number for the rig (total pixels per unit volume); at most the total pixel count over the
+    volume.
 """
 
 from __future__ import annotations
@@ -104,9 +107,10 @@ class RigCoverage:
     count : (X, Y, Z) int16 ndarray
         Cameras seeing each voxel centre; -1 outside the volume.
     density : (X, Y, Z) float32 ndarray
-        ``projected`` density (pixels per cm³ cube, summed over cameras); NaN outside.
+        ``projected`` density (px/cm²: pixels on a 1 cm x 1 cm patch facing the camera,
+        summed over cameras); NaN outside.
     density_max : (X, Y, Z) float32 ndarray
-        Best single camera's projected density; NaN outside.
+        Best single camera's projected density (px/cm²); NaN outside.
     global_density : float
         Pixels of all cameras whose rays enter the volume per cm³ of volume.
     """
@@ -133,10 +137,10 @@ class RigCoverage:
         return {
             "voxel_m": self.voxel,
             "volume_m3": self.volume.volume_m3,
-            "density_mean_px_per_cm3": float(np.nanmean(self.density[inside])),
-            "density_centre_px_per_cm3": float(self.density[centre]),
-            "density_max_camera_mean": float(np.nanmean(self.density_max[inside])),
-            "density_max_camera_centre": float(self.density_max[centre]),
+            "projected_sum_mean_px_per_cm2": float(np.nanmean(self.density[inside])),
+            "projected_sum_centre_px_per_cm2": float(self.density[centre]),
+            "projected_best_mean_px_per_cm2": float(np.nanmean(self.density_max[inside])),
+            "projected_best_centre_px_per_cm2": float(self.density_max[centre]),
             "global_px_per_cm3": self.global_density,
             "cameras_mean": float(c.mean()),
             "cameras_centre": int(self.count[centre]),
@@ -146,19 +150,21 @@ class RigCoverage:
         }
 
     def report(self) -> str:
-        """Several lines: the paper's two density figures by the definitions that reproduce
-        them (``docs/rig_density.md``), then the other candidates and camera counts."""
+        """Several lines: the paper's two density figures by the nearest definitions
+        (``docs/rig_density.md``), then the other candidates and camera counts."""
         s = self.summary()
         return "\n".join(
             [
                 f"capture volume {s['volume_m3']:.2f} m^3, voxel {100 * self.voxel:.0f} cm",
                 f"mean pixel density   {s['global_px_per_cm3']:8.2f} px/cm^3  (paper: 6.4) = "
                 "pixels of all cameras whose rays enter the volume / volume",
-                f"centre pixel density {s['density_max_camera_centre']:8.2f} px/cm^3  (paper: > 60) "
-                "= pixels of the best camera covering a 1 cm cube at the centre, fx fy (1 cm)^2 / d^2",
-                f"  other definitions: summed over cameras {s['density_centre_px_per_cm3']:.0f} at "
-                f"the centre, {s['density_mean_px_per_cm3']:.0f} mean; best camera "
-                f"{s['density_max_camera_mean']:.1f} mean",
+                f"centre pixel density {s['projected_best_centre_px_per_cm2']:8.2f} px/cm^2  "
+                "(paper: > 60 px/cm^3) = pixels of the best camera on a 1 cm x 1 cm patch at the "
+                "centre, fx fy (1 cm)^2 / d^2",
+                f"  other definitions (px/cm^2): summed over cameras "
+                f"{s['projected_sum_centre_px_per_cm2']:.0f} at the centre, "
+                f"{s['projected_sum_mean_px_per_cm2']:.0f} mean; best camera "
+                f"{s['projected_best_mean_px_per_cm2']:.1f} mean",
                 f"cameras seeing a voxel: {s['cameras_mean']:.1f} mean, {s['cameras_centre']} at "
                 f"the centre; seen by >= 2 / 5 / 10: {100 * s['fraction_seen_by_2']:.1f} / "
                 f"{100 * s['fraction_seen_by_5']:.1f} / {100 * s['fraction_seen_by_10']:.1f} %",
@@ -249,8 +255,9 @@ def plot_coverage(
     rig : CameraRig, optional
         Draw the camera centres too.
     density : {"best", "sum"}
-        Right panel: the best single camera's pixels on a 1 cm cube (the paper's centre
-        figure, ``density_max``) or the sum over cameras (``density``).
+        Right panel: the best single camera's pixels on a 1 cm x 1 cm patch (px/cm², the
+        counterpart of the paper's centre figure, ``density_max``) or the sum over cameras
+        (``density``).
     """
     if density not in ("best", "sum"):
         raise ValidationError(f"density: expected 'best' or 'sum', got {density!r}")
@@ -280,10 +287,10 @@ def plot_coverage(
         (
             axs[1],
             top_max(coverage.density_max if density == "best" else coverage.density),
-            "best camera, px per 1 cm cube (max over height)"
+            "best camera, px on 1 cm² (max over height)"
             if density == "best"
-            else "all cameras, px per 1 cm cube (max over height)",
-            "pixels per cm³",
+            else "all cameras, px on 1 cm² (max over height)",
+            "pixels per cm²",
         ),
     ):
         norm = None

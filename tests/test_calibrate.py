@@ -9,6 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from pointtraj.calibrate import (
+    Calibration,
     CalibrationError,
     CalibrationOptions,
     CharucoBoard,
@@ -19,6 +20,8 @@ from pointtraj.calibrate import (
     calibrate_images,
     compare_rigs,
     detect_charuco,
+    estimate_rig_similarity,
+    find_degenerate_cameras,
     scale_rig_by_distance,
     transform_rig,
     umeyama,
@@ -119,6 +122,99 @@ def test_compare_rigs_measures_perturbations():
     assert cmp.focal_rel[1] == pytest.approx(0.01)
     assert cmp.centre_m[1] == pytest.approx(0.01)
     assert cmp.centre_m[0] == 0.0
+
+
+def wreck(cam: Camera, focal: float | None = None, shift=(0.0, 0.0, 0.0)) -> Camera:
+    """A copy of ``cam`` with another focal length and/or a moved centre and tilted axes."""
+    K = cam.K.copy()
+    if focal is not None:
+        K[0, 0] = K[1, 1] = focal
+    R = rotation_from_rodrigues([0.0, 0.3, 0.0]) @ cam.R if any(shift) else cam.R
+    return Camera(cam.name, K, R, cam.C + np.asarray(shift), size=cam.size, dist=cam.dist)
+
+
+def test_outlier_camera_does_not_spoil_the_alignment():
+    """Regression: one badly placed camera (SfM gave ring12's cam03 a 10 px focal length and a
+    wrong pose) skewed the unweighted Umeyama fit, so every good camera showed ~7.6 deg and
+    0.5-0.9 m of error. The robust fit leaves it out and aligns the others exactly."""
+    rng = np.random.default_rng(7)
+    ref = ring(12, radius=2.5)
+    cams = list(ref)
+    cams[3] = wreck(cams[3], focal=10.3, shift=(0.9, -1.4, 0.7))
+    est = transform_rig(CameraRig(cams), *random_similarity(rng))
+    # Without the robust fit the good cameras are off (what the bug did).
+    plain = compare_rigs(est, ref, robust=False)
+    good = np.arange(12) != 3
+    assert plain.centre_m[good].max() > 0.05 and plain.alignment_outliers == []
+    cmp = compare_rigs(est, ref)
+    assert cmp.alignment_outliers == ["c3"]
+    assert cmp.rotation_deg[good].max() < 1e-5 and cmp.centre_m[good].max() < 1e-9
+    assert cmp.centre_m[3] > 1.0  # still compared, and shown to be wrong
+    assert cmp.summary()["alignment_outliers"] == 1.0
+    fit = estimate_rig_similarity(est, ref)
+    assert fit.outliers == ["c3"] and len(fit.inliers) == 11
+    assert fit.residual_m["c3"] > fit.threshold_m > max(fit.residual_m["c0"], 1e-9)
+    np.testing.assert_allclose(align_rig_to(est, ref)[0].C[good], ref.C[good], atol=1e-9)
+
+
+def test_robust_alignment_keeps_noisy_but_consistent_cameras():
+    """Centre noise of a few mm everywhere: no camera is an outlier, and the fit is the plain
+    least-squares one."""
+    rng = np.random.default_rng(8)
+    ref = ring(8)
+    noisy = CameraRig(
+        [Camera(c.name, c.K, c.R, c.C + rng.normal(scale=0.004, size=3), size=c.size) for c in ref]
+    )
+    fit = estimate_rig_similarity(noisy, ref)
+    assert fit.outliers == [] and len(fit.inliers) == 8
+    plain = estimate_rig_similarity(noisy, ref, robust=False).similarity
+    np.testing.assert_allclose(fit.similarity[1], plain[1], atol=1e-12)
+    # Two outliers among 8 cameras are both found.
+    cams = list(noisy)
+    cams[1] = wreck(cams[1], shift=(0.5, 0.0, 0.0))
+    cams[6] = wreck(cams[6], shift=(0.0, 0.0, -0.4))
+    fit = estimate_rig_similarity(CameraRig(cams), ref)
+    assert fit.outliers == ["c1", "c6"]
+    # With 3 shared cameras nothing can be told apart: all are used.
+    assert estimate_rig_similarity(CameraRig(cams[:3]), ref).outliers == []
+
+
+def fake_calibration(rig: CameraRig, errors=None, observations=None) -> Calibration:
+    names = rig.names
+    return Calibration(
+        rig=rig,
+        camera_names=names,
+        errors=dict(zip(names, errors or [0.3] * len(rig), strict=True)),
+        observations=dict(zip(names, observations or [2000] * len(rig), strict=True)),
+        failed={},
+        match_counts=np.zeros((len(rig), len(rig)), np.int64),
+    )
+
+
+def test_degenerate_cameras_are_found_with_the_reason():
+    """Regression: pycolmap gave ring12's cam03 a focal length of 10.3 px (true 420 px) and the
+    calibration accepted it."""
+    ref = ring(6)
+    assert find_degenerate_cameras(fake_calibration(ref)) == {}
+    cams = list(ref)
+    cams[3] = wreck(cams[3], focal=10.3)
+    bad = find_degenerate_cameras(fake_calibration(CameraRig(cams)))
+    assert list(bad) == ["c3"]
+    assert "focal length 10.3 px" in bad["c3"] and "plausible: 0.1 to 10" in bad["c3"]
+    cams[3] = Camera(
+        ref[3].name, ref[3].K, ref[3].R, ref[3].C, size=ref[3].size, dist=[2.8, 0, 0, 0]
+    )
+    assert "distortion" in find_degenerate_cameras(fake_calibration(CameraRig(cams)))["c3"]
+    errors = [0.3, 0.35, 0.28, 0.31, 2.5, 0.3]
+    observations = [2000, 2100, 90, 1900, 2000, 2050]
+    bad = find_degenerate_cameras(fake_calibration(ref, errors, observations))
+    assert list(bad) == ["c2", "c4"]
+    assert "90 observations" in bad["c2"] and "reprojection error 2.5 px" in bad["c4"]
+    # A high error is not an outlier when every camera is as bad (ratio), nor below 1 px.
+    assert find_degenerate_cameras(fake_calibration(ref, [2.0] * 6)) == {}
+    assert find_degenerate_cameras(fake_calibration(ref, [0.1] * 5 + [0.9])) == {}
+    with pytest.raises(ValidationError, match="min_focal_ratio"):
+        CalibrationOptions(min_focal_ratio=5.0, max_focal_ratio=2.0)
 
 
 def test_scale_rig_by_distance():
@@ -261,6 +357,16 @@ def test_calibrate_charuco_recovers_intrinsics_and_poses(tmp_path):
     assert cmp.rotation_deg.max() < 0.3 and cmp.centre_m.max() < 0.01
     with pytest.raises(ValidationError, match="lens"):
         calibrate_charuco(dets, board, rig.names, [tuple(s) for s in rig.sizes], lens="odd")
+    # Distortion beyond k1 is held at 0 for cameras whose board corners stay near the centre
+    # (regression: caliscope's cam_3 got k2 = +2.78 from corners within 0.3 of the
+    # half-diagonal, 761 px of distortion difference towards the image corners).
+    sizes = [tuple(s) for s in rig.sizes]
+    free, _ = calibrate_charuco(dets, board, rig.names, sizes, min_k2_coverage=0.0)
+    held, stats = calibrate_charuco(dets, board, rig.names, sizes, min_k2_coverage=1.0)
+    assert np.all(held.rig.dist[:, 1] == 0) and np.all(free.rig.dist[:, 1] != 0)
+    assert "k1 only" in held.notes[-1] and all(n in held.notes[-1] for n in rig.names)
+    assert 0 < stats["coverage_c0"] < 1
+    assert compare_rigs(held.rig, rig).rotation_deg.max() < 0.3
 
 
 # ---------------------------------------------------------------------------------- pycolmap
@@ -382,3 +488,37 @@ def test_charuco_board_of_the_real_capture_is_detected():
     assert ok
     ids, xy = detect_charuco(frame[..., ::-1], board)
     assert len(ids) >= 10 and xy.shape == (len(ids), 2)
+
+
+@pytest.mark.slow
+def test_retry_registers_a_dropped_camera_with_the_median_focal(ring8_capture, tmp_path):
+    """A camera taken out of the model (as a degenerate one is) is registered again by
+    continuing the mapping with the median focal length as its prior."""
+    import pycolmap
+
+    from pointtraj.calibrate import _retry_registration, export_frames
+    from pointtraj.session import Capture
+
+    cap = Capture.open(ring8_capture)
+    list(export_frames(cap, [0], tmp_path / "images"))
+    cal = calibrate_images(tmp_path / "images", tmp_path / "w")
+    assert len(cal.rig) == 8
+    rec = pycolmap.Reconstruction(str(tmp_path / "w" / "model"))
+    for image_id in list(rec.reg_image_ids()):
+        if rec.images[image_id].name.startswith("cam05/"):
+            rec.deregister_frame(rec.images[image_id].frame_id)
+    assert rec.num_reg_images() == 7
+    mapper = pycolmap.IncrementalPipelineOptions()
+    mapper.num_threads = 2
+    redone = _retry_registration(
+        rec,
+        cal,
+        ["cam05"],
+        tmp_path / "w" / "database.db",
+        tmp_path / "images",
+        tmp_path / "w",
+        mapper,
+    )
+    assert redone.num_reg_images() == 8
+    names = {redone.images[i].name.split("/")[0] for i in redone.reg_image_ids()}
+    assert "cam05" in names
