@@ -9,11 +9,11 @@ Usage (from the repository root)::
 Runs the reconstruction (or resumes / reuses it in ``--work``), then measures against the ground
 truth written by ``pointtraj synth``:
 
-- **3D error**: distance from each reconstructed point to the nearest ground-truth surface point
-  of the same frame. The surface is every camera's GT depth map back-projected (every
-  ``--surface-stride``-th pixel), in
-  a KD-tree; split into points on the actors (within ``--actor-radius`` of a GT actor point) and
-  the rest (floor, background).
+- **3D error**: distance from each reconstructed point to the ground-truth surface of the same
+  frame (:func:`pointtraj.evaluate.groundtruth.surface_errors`: point to the plane of the GT
+  depth map's pixels around its projection, the smallest over the cameras that see it); split
+  into points on the actors (within ``--actor-radius`` of a GT actor point) and the rest
+  (floor, background).
 - **Drift**: for each trajectory that starts within ``--actor-radius`` of an actor, the local
   rigid motion of its 8 nearest GT points of the same part (Kabsch) predicts where it should be at
   its last frame; drift is the distance between prediction and reconstruction.
@@ -42,41 +42,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-
-def gt_surface(capture_dir: Path, rig, frame: int, stride: int = 1) -> np.ndarray:
-    """(S, 3) world points of every camera's GT depth map at ``frame`` (every ``stride`` px)."""
-    from pointtraj.synth.groundtruth import load_depth_map
-
-    pts = []
-    for c, cam in enumerate(rig):
-        depth = load_depth_map(capture_dir, cam.name, frame)[::stride, ::stride]  # (h, w)
-        v, u = np.nonzero(np.isfinite(depth))
-        if u.size == 0:
-            continue
-        z = depth[v, u].astype(np.float64)
-        pix = np.stack([u * stride, v * stride], axis=1).astype(np.float64)  # (S_c, 2)
-        one = rig.subset([c])
-        xy = one.normalized(pix[None])[0]  # (S_c, 2) undistorted normalised
-        cam_pts = np.concatenate([xy * z[:, None], z[:, None]], axis=1)  # (S_c, 3)
-        pts.append(cam_pts @ cam.R + cam.C)  # R^T x_cam + C
-    return np.concatenate(pts) if pts else np.zeros((0, 3))
-
-
-def surface_errors(capture_dir: Path, rig, traj, frames: range, stride: int = 1) -> np.ndarray:
-    """(P',) distance of each reconstructed point-frame to the GT surface of its frame."""
-    from scipy.spatial import cKDTree
-
-    out = []
-    for t in frames:
-        fs = traj.frame(t)
-        if len(fs.xyz) == 0:
-            continue
-        surf = gt_surface(capture_dir, rig, t, stride)
-        # far (wrong) points make exact KD-tree queries slow: cap the search at 1 m
-        d, _ = cKDTree(surf).query(fs.xyz.astype(np.float64), k=1, distance_upper_bound=1.0)
-        out.append(np.minimum(d, 1.0))
-    return np.concatenate(out) if out else np.zeros(0)
 
 
 def actor_mask(gt, traj, frames: range, radius: float) -> np.ndarray:
@@ -163,12 +128,15 @@ def coverage(gt, traj, frames: range, radius: float) -> dict[str, float]:
 
 
 def evaluate(capture_dir: Path, traj, frames: range, args) -> dict:
+    from pointtraj.evaluate.groundtruth import surface_errors
     from pointtraj.session import Capture
     from pointtraj.synth.groundtruth import load_ground_truth
 
     cap = Capture.open(capture_dir)
     gt = load_ground_truth(capture_dir)
-    err = surface_errors(capture_dir, cap.rig, traj, frames, args.surface_stride)
+    rig = cap.rig.subset(traj.camera_names)
+    err = surface_errors(capture_dir, rig, traj, frames)
+    err = np.where(np.isnan(err), 1.0, err)  # no surface near the point: far off
     rows = np.concatenate([traj.frame_rows(t) for t in frames])
     on_actor = actor_mask(gt, traj, frames, args.actor_radius)[rows]
     dr = drift(gt, traj, args.actor_radius)
@@ -333,7 +301,6 @@ def main() -> None:
     ap.add_argument("--report", type=Path, default=None, help="write the figures as JSON")
     ap.add_argument("--actor-radius", type=float, default=0.02)
     ap.add_argument("--coverage-radius", type=float, default=0.02)
-    ap.add_argument("--surface-stride", type=int, default=2)
     ap.add_argument(
         "--board",
         type=Path,
