@@ -72,6 +72,7 @@ def main() -> None:
     ap.add_argument("--capture", type=Path, default=None, help="default: from WORK/work.toml")
     ap.add_argument("--every", type=int, default=5, help="use every n-th frame")
     ap.add_argument("--radius", type=float, default=0.25, help="on the body within (m)")
+    ap.add_argument("--min-length", type=int, default=1, help="only trajectories this long")
     ap.add_argument("--report", type=Path, default=None)
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args()
@@ -108,6 +109,7 @@ def main() -> None:
         rows = traj.frame_rows(t)
         lab = labels.labels[traj.row_track[rows]]
         body = np.isin(lab, list(part_of_class))
+        body &= traj.lengths[traj.row_track[rows]] >= args.min_length
         if not body.any() or not np.isfinite(skel[f]).any():
             continue
         X = traj.xyz[rows[body]].astype(np.float64)
@@ -153,6 +155,7 @@ def main() -> None:
             top = np.bincount(near[sel], minlength=len(names))
             res["by_part"][n] = {
                 "n": int(sel.sum()),
+                "off_body": int(np.sum(~on & (lab == k))),
                 "agree": float(np.mean(near[sel] == k)),
                 "most_often_nearest": names[int(top.argmax())],
             }
