@@ -38,6 +38,7 @@ __all__ = [
     "expand_alpha",
     "alpha_expansion",
     "plausible_labels",
+    "argmax_labels",
     "label_trajectories",
 ]
 
@@ -64,6 +65,12 @@ class LabelingConfig:
         α is plausible for a trajectory whose normalised L3D for α is at least this.
     max_sweeps : int
         Upper bound on sweeps over the labels (it stops earlier when no move improves).
+    background : float
+        L3D of a virtual "none of the classes" label, for every trajectory: a trajectory whose
+        L3D stays below it for every class (the walls and the floor of a real capture, where no
+        recogniser fires) is left unlabelled (-1) unless its affinity neighbours pull it into
+        a class. 0 turns it off and labels every trajectory, as the paper does (its captures
+        hold only the labelled people and objects).
     """
 
     smoothness: float = 0.5
@@ -71,6 +78,7 @@ class LabelingConfig:
     method: Literal["restricted", "full"] = "restricted"
     plausible_threshold: float = 0.05
     max_sweeps: int = 10
+    background: float = 0.1
 
     def __post_init__(self) -> None:
         if not self.smoothness >= 0:
@@ -85,6 +93,10 @@ class LabelingConfig:
             )
         if self.max_sweeps < 1:
             raise ValidationError("LabelingConfig.max_sweeps must be >= 1")
+        if not 0 <= self.background < 1:
+            raise ValidationError(
+                f"LabelingConfig.background must be in [0, 1), got {self.background!r}"
+            )
 
 
 @dataclass
@@ -440,6 +452,32 @@ def _components_touching(free: np.ndarray, touched: np.ndarray, adj: _Adjacency)
     return out
 
 
+def argmax_labels(l3d: np.ndarray, background: float = 0.0) -> np.ndarray:
+    """The class of largest L3D per trajectory, -1 where every class is below ``background``.
+
+    Parameters
+    ----------
+    l3d : (M, K) float ndarray
+        NaN counts as 0.
+    background : float
+        See :attr:`LabelingConfig.background` (0: never -1).
+
+    Returns
+    -------
+    (M,) int64 ndarray
+
+    Examples
+    --------
+    >>> argmax_labels(np.array([[0.2, 0.5], [0.05, 0.0]]), 0.1).tolist()
+    [1, -1]
+    """
+    l3d = np.nan_to_num(np.asarray(l3d, np.float64), nan=0.0)
+    top = l3d.argmax(axis=1) if l3d.shape[1] else np.full(l3d.shape[0], -1)
+    if background > 0 and l3d.shape[1]:
+        top = np.where(l3d.max(axis=1) < background, -1, top)
+    return top.astype(np.int64)
+
+
 def label_trajectories(
     l3d: np.ndarray,
     row: np.ndarray,
@@ -452,7 +490,9 @@ def label_trajectories(
     """Label trajectories from their 3D semantic map and affinity graph (paper Section 4.3).
 
     Data costs from ``config.data_cost``, initialisation at the argmax of L3D, then
-    :func:`alpha_expansion` (restricted moves use :func:`plausible_labels`).
+    :func:`alpha_expansion` (restricted moves use :func:`plausible_labels`). With
+    ``config.background > 0`` a virtual label of constant L3D ``background`` takes part in the
+    expansion; the trajectories that end with it are labelled -1.
 
     Parameters
     ----------
@@ -467,12 +507,17 @@ def label_trajectories(
     Returns
     -------
     LabelingResult
+        ``labels`` in [-1, K).
     """
     cfg = config or LabelingConfig()
     l3d = check_array("l3d", l3d, (None, None), dtype=np.float64)
+    K = l3d.shape[1]
+    if cfg.background > 0:
+        none = np.full((l3d.shape[0], 1), cfg.background)
+        l3d = np.concatenate([np.nan_to_num(l3d, nan=0.0), none], axis=1)  # (M, K + 1)
     D = data_costs(l3d, cfg.data_cost)
     init = np.nan_to_num(l3d, nan=0.0).argmax(axis=1)
-    return alpha_expansion(
+    res = alpha_expansion(
         D,
         row,
         col,
@@ -482,3 +527,5 @@ def label_trajectories(
         plausible=plausible_labels(l3d, cfg.plausible_threshold),
         progress=progress,
     )
+    res.labels = np.where(res.labels >= K, -1, res.labels).astype(np.int64)
+    return res

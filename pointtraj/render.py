@@ -901,6 +901,9 @@ class RenderConfig:
         is an error when neither does.
     min_length : int
         Draw only trajectories living at least this many frames (1 draws all).
+    unlabelled : bool
+        Draw the unlabelled trajectories (label -1, grey). Off shows only the labelled people
+        and objects of a real capture, whose room is mostly unlabelled.
     legend : bool
         Draw the legend (class name and colour of each class drawn) in the images; it is
         written to ``renders/legend.png`` in any case.
@@ -932,6 +935,7 @@ class RenderConfig:
     overlay_radius: int = 2
     colors: Literal["auto", "labels", "semantic_map", "grey"] = "auto"
     min_length: int = 1
+    unlabelled: bool = True
     legend: bool = True
     caption: bool = True
 
@@ -1141,8 +1145,13 @@ def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
         label_set = LabelSet.load(capture.labels_path)
         inputs.append(capture.labels_path)
     palette = class_palette(names, label_set)
-    if cfg.min_length > 1:
-        keep = np.flatnonzero(traj.lengths >= cfg.min_length)
+    drawn = traj.lengths >= cfg.min_length  # (M,)
+    if not cfg.unlabelled:
+        drawn &= (labels >= 0) & (labels < len(names))
+    if not drawn.all():
+        if not drawn.any():
+            raise ValidationError("nothing to render: no trajectory is labelled and long enough")
+        keep = np.flatnonzero(drawn)
         traj, labels = traj.subset(keep), labels[keep]
     return _Scene(traj, labels, names, palette, source, inputs, capture, problem)
 
@@ -1236,7 +1245,7 @@ def _settings(kind: str, name: str, scene: _Scene, cfg: RenderConfig) -> dict:
         {"path": str(p.resolve()), "bytes": p.stat().st_size, "mtime_ns": p.stat().st_mtime_ns}
         for p in scene.inputs
     ]
-    keys = ["tail", "colors", "min_length", "legend", "caption"]
+    keys = ["tail", "colors", "min_length", "unlabelled", "legend", "caption"]
     if kind == "overlay":
         keys += ["overlay_radius"]
     else:

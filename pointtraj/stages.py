@@ -397,7 +397,7 @@ def label_work(
     """
     from .affinity import load_affinity
     from .labelfile import TrajectoryLabels, save_labels
-    from .labeling import label_trajectories
+    from .labeling import argmax_labels, label_trajectories
     from .semantics.semantic_map import SemanticMap
     from .trajectories import Trajectories
 
@@ -429,16 +429,16 @@ def label_work(
 
     def on_move(n: int = 1) -> None:
         steps[0] += n
-        _report(progress, "label", steps[0], K * lab_cfg.max_sweeps)
+        _report(progress, "label", steps[0], (K + (lab_cfg.background > 0)) * lab_cfg.max_sweeps)
 
     res = label_trajectories(l3d, graph.row, graph.col, graph.weight, lab_cfg, progress=on_move)
-    s = l3d.sum(axis=1)
-    picked = l3d[np.arange(M), res.labels]
+    s = np.nansum(l3d, axis=1)
+    picked = np.where(res.labels >= 0, l3d[np.arange(M), np.maximum(res.labels, 0)], 0.0)
     conf = np.where(s > 0, picked / np.where(s > 0, s, 1.0), 0.0)
     result = TrajectoryLabels(
         labels=res.labels,
         confidence=conf,
-        argmax=l3d.argmax(axis=1),
+        argmax=argmax_labels(l3d, lab_cfg.background),
         class_names=smap.class_names,
         energy=np.asarray(res.energy, np.float64),
         pooling=cfg.pooling,
@@ -452,8 +452,10 @@ def label_work(
             trajectories.write_frame_ply(t, wf.cloud(t), labels=result.labels)
             _report(progress, "label: clouds", i + 1, len(frames))
     logger.info(
-        "labelled %d trajectories (%d changed from the argmax), energy %.6g -> %.6g in %.1f s",
+        "labelled %d trajectories (%d unlabelled, %d changed from the argmax), energy %.6g -> "
+        "%.6g in %.1f s",
         M,
+        int((result.labels < 0).sum()),
         int((result.labels != result.argmax).sum()),
         res.energy[0],
         res.energy[-1],

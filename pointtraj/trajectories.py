@@ -164,6 +164,17 @@ class Trajectories:
         """(M,) int64 last frame of each trajectory (inclusive)."""
         return self.first_frame + self.lengths - 1
 
+    @property
+    def occupied_frames(self) -> range:
+        """The frames from the first to the last where a trajectory lives (empty without any).
+
+        A reconstruction of frames ``A:B`` of a longer capture has ``num_frames`` = the
+        capture's, and trajectories only in ``A:B``.
+        """
+        if self.num_trajectories == 0:
+            return range(0)
+        return range(int(self.first_frame.min()), int(self.last_frame.max()) + 1)
+
     @cached_property
     def row_track(self) -> np.ndarray:
         """(P,) int64 trajectory index of each point-frame row."""

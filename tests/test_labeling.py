@@ -11,8 +11,10 @@ from pointtraj.errors import ValidationError
 from pointtraj.labeling import (
     LabelingConfig,
     alpha_expansion,
+    argmax_labels,
     data_costs,
     expand_alpha,
+    label_trajectories,
     labeling_energy,
 )
 
@@ -210,3 +212,22 @@ def test_cut_keeps_rigidly_attached_small_part():
     assert across.sum() > 50 and g_old.affinity[across].mean() > 0.95
     old = label_trajectories(l3d, g_old.row, g_old.col, g_old.weight, LabelingConfig(smoothness=1))
     assert (old.labels[hand] == 1).mean() < 0.2
+
+
+def test_background_leaves_trajectories_without_semantics_unlabelled():
+    """Regression: on a real capture every wall and floor trajectory (L3D all zero) was
+    labelled ``head``, class 0, the argmax of a zero row."""
+    l3d = np.array([[0.8, 0.1], [0.0, 0.0], [0.02, 0.05], [0.0, 0.05], [0.1, 0.7]])
+    row, col, weight = np.array([0, 3]), np.array([1, 4]), np.array([0.0, 100.0])
+    res = label_trajectories(l3d, row, col, weight, LabelingConfig(background=0.1))
+    # 1 and 2 have nothing above 0.1; 3 (weak evidence) is pulled into its neighbour's class
+    # by the affinity.
+    np.testing.assert_array_equal(res.labels, [0, -1, -1, 1, 1])
+    np.testing.assert_array_equal(argmax_labels(l3d, 0.1), [0, -1, -1, -1, 1])
+    off = label_trajectories(l3d, row, col, weight, LabelingConfig(background=0.0))
+    assert off.labels.min() == 0  # the paper's: every trajectory gets a class
+    np.testing.assert_array_equal(argmax_labels(l3d), [0, 0, 1, 1, 1])
+    nan = label_trajectories(np.full((2, 3), np.nan), [], [], [], LabelingConfig())
+    np.testing.assert_array_equal(nan.labels, [-1, -1])
+    with pytest.raises(ValidationError, match="background must be in"):
+        LabelingConfig(background=1.0)

@@ -199,6 +199,7 @@ def test_synth_config_validates():
 
 def test_load_api(tiny_run, tmp_path):
     import pointtraj
+    from pointtraj.render import label_colors
 
     _, config, _ = tiny_run
     res = pointtraj.load(config.work)
@@ -210,7 +211,7 @@ def test_load_api(tiny_run, tmp_path):
     label = pcd.point.label.numpy().ravel()
     np.testing.assert_array_equal(label, res.label[track])
     colors = np.rint(pcd.point.colors.numpy() * 255).astype(int)
-    np.testing.assert_array_equal(colors, res.class_colors[label])
+    np.testing.assert_array_equal(colors, label_colors(label, res.class_colors))  # -1: grey
     assert len(res.label) == M
     with pytest.raises(FileFormatError, match="trajectories.npz: no such file"):
         pointtraj.load(tmp_path)

@@ -4,6 +4,7 @@ Open3D and OpenCV rendering)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -252,6 +253,21 @@ def test_render_work_colours_land_where_projected(tiny_work, engine):
     # Red is on the left of cam0's image (world -y), blue on the right; background white.
     assert px[lab[fs.track_id] == 0, 0].max() < px[lab[fs.track_id] == 1, 0].min()
     assert tuple(img[2, 2]) == (255, 255, 255)
+
+
+def test_render_work_can_hide_unlabelled(tiny_work, tmp_path):
+    cfg = RenderConfig(
+        engine="opencv", views=("cam0",), frames=(3, 4), tail=0, overlays=False, video=False,
+        legend=False, caption=False, floor=False, unlabelled=False,
+    )  # fmt: skip
+    res = render_work(tiny_work, cfg)
+    assert res.classes == ["red_thing", "blue_thing"]
+    img = read_png(tiny_work / "renders" / "views" / "cam0" / "000003.png")
+    assert not np.all(img == 128, axis=2).any()  # no grey point
+    assert np.all(img == RED, axis=2).any() and np.all(img == BLUE, axis=2).any()
+    grey = make_work(tmp_path / "g", labels=False)
+    with pytest.raises(ValidationError, match="nothing to render: no trajectory is labelled"):
+        render_work(grey, dataclasses.replace(cfg, colors="grey"))
 
 
 def test_render_work_orbit_overlay_and_semantic_map_fallback(tmp_path):

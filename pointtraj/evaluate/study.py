@@ -229,28 +229,29 @@ def _load_optional(path: Path, loader, what: str, notes: list[str]):
 
 def _summary_section(traj, metrics: dict) -> Section:
     lengths = traj.lengths
-    seconds = traj.num_frames / traj.fps if traj.fps > 0 else float("nan")
+    frames = len(traj.occupied_frames)  # a reconstruction of frames A:B: only those count
+    seconds = frames / traj.fps if traj.fps > 0 else float("nan")
     err = traj.reprojection_error
     err = err[np.isfinite(err)]
     metrics.update(
         {
             "trajectories.count": traj.num_trajectories,
             "trajectories.point_frames": traj.num_point_frames,
-            "trajectories.frames": traj.num_frames,
+            "trajectories.frames": frames,
             "trajectories.cameras": traj.num_cameras,
             "trajectories.per_second": traj.num_trajectories / seconds,
             "trajectories.length.mean": float(lengths.mean()) if len(lengths) else float("nan"),
             "trajectories.length.p10": _q(lengths, 10),
             "trajectories.length.median": _q(lengths, 50),
             "trajectories.length.p90": _q(lengths, 90),
-            "trajectories.points_per_frame": traj.num_point_frames / max(traj.num_frames, 1),
+            "trajectories.points_per_frame": traj.num_point_frames / max(frames, 1),
             "reprojection_px.median": _q(err, 50),
             "reprojection_px.p90": _q(err, 90),
         }
     )
     body = (
         f"{traj.num_trajectories} trajectories ({metrics['trajectories.per_second']:.0f} per "
-        f"second), {traj.num_point_frames} point-frames over {traj.num_frames} frames "
+        f"second), {traj.num_point_frames} point-frames over {frames} frames "
         f"({traj.fps:g} Hz) from {traj.num_cameras} cameras: "
         f"{metrics['trajectories.points_per_frame']:.0f} points per frame.\n\n"
         "| | p10 | median | p90 | mean |\n|---|---|---|---|---|\n"
@@ -457,7 +458,8 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
     recognizer = make_stage_recognizer(semantics_cfg, cap)
     needs_image = getattr(recognizer, "needs_image", True)
     names = list(rig.names)
-    stride = max(1, math.ceil(traj.num_frames / cfg.validity_frames))
+    span = len(traj.occupied_frames)  # a reconstruction of frames A:B lives only there
+    stride = max(1, math.ceil(span / cfg.validity_frames))
 
     def recognize(c: int, t: int) -> np.ndarray:
         image = cap.read(names[c], t) if needs_image else None
@@ -470,7 +472,7 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
         def visibility(xyz: np.ndarray, V: np.ndarray) -> np.ndarray:
             return geometric_visibility(rig, xyz, V, semantics_cfg)
 
-    step = _tick(progress, "evaluate: predictive validity", math.ceil(traj.num_frames / stride))
+    step = _tick(progress, "evaluate: predictive validity", math.ceil(span / stride))
     samples = collect_camera_samples(
         traj,
         rig,

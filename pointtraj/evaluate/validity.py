@@ -81,7 +81,7 @@ def collect_camera_samples(
     max_tracks : int
         Trajectories sampled (all when there are fewer).
     frame_stride : int
-        Use every n-th frame.
+        Use every n-th frame of :attr:`Trajectories.occupied_frames`.
     min_confidence : float
         Below this maximum confidence a projection counts as "nothing recognised".
     seed : int
@@ -108,7 +108,7 @@ def collect_camera_samples(
     chosen[rng.choice(M, size=min(M, max_tracks), replace=False)] = True
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("track", "frame", "L", "V", "inimg")}
     C = len(rig)
-    for t in range(0, trajectories.num_frames, frame_stride):
+    for t in trajectories.occupied_frames[::frame_stride]:
         rows = trajectories.frame_rows(t)
         keep = chosen[trajectories.row_track[rows]]
         V_rows = None

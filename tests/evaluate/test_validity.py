@@ -87,3 +87,27 @@ def test_collect_camera_samples_uses_the_recognizer():
     assert s.L.shape == (len(s.track), 3, 2)
     np.testing.assert_array_equal(s.observed[:, 1], 1)
     np.testing.assert_array_equal(s.observed[:, 0], 0)
+    # A reconstruction of frames 6:9 of a longer capture: frames before 6 hold no points.
+    late = np.full((50, 9, 3), np.nan)
+    late[:, 6:] = xyz[:, :3]
+    cut = Trajectories.from_dense(late, np.ones((50, 9, 3)), camera_names=rig.names)
+    assert cut.occupied_frames == range(6, 9) and cut.num_frames == 9
+    s = collect_camera_samples(cut, rig, recognize, 2, frame_stride=2)
+    assert set(np.unique(s.frame)) == {6, 8}
+
+
+def test_collect_camera_samples_on_a_frame_cut():
+    """Regression: with frames = "24:28" the stride ran over the whole capture from frame 0,
+    sampled no frame with points, and the report skipped predictive validity."""
+    cam = Camera.look_at("c0", [2, 0, 1], [0, 0, 1], (64, 48), 60.0)
+    rig = CameraRig([cam, Camera.look_at("c1", [0, 2, 1], [0, 0, 1], (64, 48), 60.0)])
+    xyz = np.full((5, 57, 3), np.nan)
+    xyz[:, 24:28] = [0, 0, 1]
+    cut = Trajectories.from_dense(xyz, np.ones((5, 57, 2)), camera_names=rig.names)
+    assert Trajectories.from_dense(
+        np.zeros((0, 3, 3)), camera_names=["a"]
+    ).occupied_frames == range(0)
+    s = collect_camera_samples(
+        cut, rig, lambda c, t: np.ones((4, 4, 1), np.float32), 1, frame_stride=2
+    )
+    assert set(np.unique(s.frame)) == {24, 26}
