@@ -108,6 +108,7 @@ def affinity_study(traj, label, taus, modes, threshold: float, seed: int, draws:
         fit_local_rigid,
         pair_errors,
         sample_neighbors,
+        symmetric_affinity,
     )
 
     cfg = AffinityConfig(seed=seed)
@@ -123,10 +124,8 @@ def affinity_study(traj, label, taus, modes, threshold: float, seed: int, draws:
     rows = {"eps_s (all pairs)": (*frac_by_bin(d, differ), None)}
     for mode in modes:
         e = np.stack([pair_errors(traj, tf, i, j, mode), pair_errors(traj, tf, j, i, mode)], 1)
-        fin = np.isfinite(e)
         for tau in taus:
-            with np.errstate(invalid="ignore"):
-                a = np.where(fin, np.exp(-((e / tau) ** 2)), 0.0).sum(1) / fin.sum(1)
+            a = symmetric_affinity(e[:, 0], e[:, 1], tau)  # NaN: untestable, not kept
             keep = np.nan_to_num(a) > threshold
             frac, count = frac_by_bin(d[keep], differ[keep])
             kept_same = frac_by_bin(d[keep & ~differ], differ[keep & ~differ])[1]
