@@ -341,10 +341,10 @@ def semantics_work(
         config=cfg.semantics_config(),
         progress=progress is not None,
     )
-    if hasattr(smap, "recognizer_options"):
-        smap.recognizer_options = {
-            k: v for k, v in cfg.options.items() if isinstance(v, str | int | float | bool)
-        } | ({"capture": str(Path(cap.path).resolve())} if cfg.recognizer == "simulated" else {})
+    # The options as given (not the capture, which the simulated recogniser gets anew).
+    smap.recognizer_options = {
+        k: v for k, v in cfg.options.items() if isinstance(v, str | int | float | bool)
+    }
     smap.save(wf.semantic_map)
     return smap
 

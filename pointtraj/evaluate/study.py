@@ -644,7 +644,11 @@ def evaluate_work(
         )
     if smap is not None:
         if semantics_config is None:
-            semantics_config = SemanticsStageConfig(recognizer=smap.recognizer, eps_e=smap.eps_e)
+            semantics_config = SemanticsStageConfig(
+                recognizer=smap.recognizer,
+                options=dict(smap.recognizer_options),
+                eps_e=smap.eps_e,
+            )
         try:
             sections.append(
                 _validity_section(cap, traj, semantics_config, cfg, folder, metrics, progress)

@@ -19,6 +19,7 @@ as well (:attr:`SemanticMap.samples`). The file format is ``data_specs/semantic_
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 from dataclasses import dataclass, field
@@ -226,6 +227,9 @@ class SemanticMap:
         Name of the recogniser used.
     fps : float
         Frame rate of the trajectories.
+    recognizer_options : dict
+        The recogniser's options (strings, numbers and booleans), so that a later stage (the
+        report's predictive validity) can run the same recogniser.
     """
 
     class_names: tuple[str, ...]
@@ -238,6 +242,7 @@ class SemanticMap:
     eps_e: float = SemanticsConfig.eps_e
     recognizer: str = ""
     fps: float = 30.0
+    recognizer_options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.class_names = tuple(self.class_names)
@@ -335,6 +340,7 @@ class SemanticMap:
             "eps_e": np.array(self.eps_e, dtype=np.float64),
             "recognizer": np.array(self.recognizer),
             "fps": np.array(self.fps, dtype=np.float64),
+            "recognizer_options": np.array(json.dumps(self.recognizer_options, sort_keys=True)),
         }
         for p in self.poolings:
             arrays[f"L3D_{p}"] = self.L3D[p].astype(np.float32)
@@ -389,7 +395,10 @@ class SemanticMap:
                 eps_e=float(arrays.get("eps_e", SemanticsConfig.eps_e)),
                 recognizer=str(arrays.get("recognizer", "")),
                 fps=float(arrays.get("fps", 30.0)),
+                recognizer_options=json.loads(str(arrays.get("recognizer_options", "{}"))),
             )
+        except json.JSONDecodeError:
+            raise FileFormatError(path, "recognizer_options: not JSON") from None
         except ValidationError as exc:
             raise FileFormatError(path, str(exc)) from None
 

@@ -64,6 +64,13 @@ def test_evaluate_writes_the_report(gt_work):
     assert any(line.startswith("label accuracy: graph cut") for line in lines)
 
 
+def test_the_semantic_map_records_its_recogniser_options(gt_work):
+    from pointtraj.semantics.semantic_map import SemanticMap
+
+    _, work = gt_work
+    assert SemanticMap.load(work / "semantic_map.npz").recognizer_options == {"noise": "low"}
+
+
 def test_true_labels_of_ground_truth_and_of_other_stores(gt_work):
     cap, work = gt_work
     traj = Trajectories.load(work / "trajectories.npz")

@@ -226,9 +226,12 @@ def test_temporal_consistency_and_nc(scene):
 def test_save_load_round_trip(scene, tmp_path):
     rig, traj, label = scene
     smap = build_semantic_map(FakeCapture(rig), traj, RasterRecognizer(rig, traj, label))
+    assert smap.recognizer_options == {}
+    smap.recognizer_options = {"noise": "low", "downsample": 2}
     path = tmp_path / "semantic_map.npz"
     smap.save(path)
     back = SemanticMap.load(path)
+    assert back.recognizer_options == {"noise": "low", "downsample": 2}
     assert back.class_names == smap.class_names and back.poolings == smap.poolings
     assert back.recognizer == "raster" and back.eps_e == smap.eps_e and back.fps == 30.0
     for p in smap.poolings:
