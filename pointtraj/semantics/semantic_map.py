@@ -24,7 +24,7 @@ import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
@@ -79,7 +79,7 @@ class SemanticsConfig:
         ``unobserved_visibility`` in the cameras where the point projects into the image and is
         not occluded by the frame's own points (:func:`geometric_visibility`): the matches chain
         into tracks of only a few views, so observed visibility leaves view pooling one or
-        two cameras to choose from (``docs/user_guide.md`` has the measurement).
+        two cameras to choose from (``docs/semantics.md`` has the measurement).
     unobserved_visibility : float
         V of an unoccluded camera without an observation, with ``"geometric"``.
     occlusion_depth_m : float
@@ -94,7 +94,7 @@ class SemanticsConfig:
     sample_budget_mb: float = 256.0
     sample_tracks: int | None = None
     seed: int = 0
-    visibility: str = "geometric"
+    visibility: Literal["geometric", "observed"] = "geometric"
     unobserved_visibility: float = 0.5
     occlusion_depth_m: float = 0.05
     occlusion_cell_px: float = 8.0
