@@ -104,20 +104,15 @@ def affinity_study(traj, label, taus, modes, threshold: float, seed: int, draws:
     from pointtraj.affinity import (
         AffinityConfig,
         candidate_pairs,
-        filter_neighbors,
-        fit_local_rigid,
+        local_transforms,
         pair_errors,
-        sample_neighbors,
         symmetric_affinity,
     )
 
     cfg = AffinityConfig(seed=seed)
     rng = np.random.default_rng([seed, 0])
     t0 = time.perf_counter()
-    nb = filter_neighbors(
-        traj, sample_neighbors(traj, cfg.epsilon, cfg.rigid_neighbors, rng), cfg.epsilon
-    )
-    tf = fit_local_rigid(traj, nb, cfg)
+    tf = local_transforms(traj, cfg, rng)
     i, j, d = candidate_pairs(traj, 1.0, 0, draws, rng)
     differ = label[i] != label[j]
     same_count = frac_by_bin(d[~differ], differ[~differ])[1]

@@ -64,6 +64,7 @@ __all__ = [
     "pair_max_distance",
     "filter_neighbors",
     "fit_local_rigid",
+    "local_transforms",
     "kabsch_rotation",
     "pair_errors",
     "symmetric_affinity",
@@ -731,6 +732,33 @@ def pair_errors(
     return out
 
 
+def local_transforms(
+    traj: Trajectories, config: AffinityConfig, rng: np.random.Generator
+) -> LocalTransforms:
+    """Every trajectory's local rigid transforms, fitted on its sampled ε-neighbours.
+
+    :func:`sample_neighbors` draws ``config.rigid_neighbors`` candidates in the ε-ball,
+    :func:`filter_neighbors` keeps those within ε over the shared lifetime, and
+    :func:`fit_local_rigid` fits the transforms by RANSAC (paper Equation (transform)).
+
+    Parameters
+    ----------
+    traj : Trajectories
+    config : AffinityConfig
+        ε, ``rigid_neighbors`` and the RANSAC settings.
+    rng : numpy.random.Generator
+        Draws the neighbours and the RANSAC samples.
+
+    Returns
+    -------
+    LocalTransforms
+    """
+    nb = filter_neighbors(
+        traj, sample_neighbors(traj, config.epsilon, config.rigid_neighbors, rng), config.epsilon
+    )
+    return fit_local_rigid(traj, nb, config)
+
+
 def symmetric_affinity(
     e_fwd: np.ndarray,
     e_bwd: np.ndarray,
@@ -797,13 +825,8 @@ def compute_affinity(
         if progress is not None:
             progress(stage, done, total)
 
-    report("epsilon-neighbours", 0, 5)
-    nb = filter_neighbors(
-        traj, sample_neighbors(traj, cfg.epsilon, cfg.rigid_neighbors, rng), cfg.epsilon
-    )
-    report("local rigid transforms", 1, 5)
-    tf = fit_local_rigid(traj, nb, cfg)
-    del nb
+    report("epsilon-neighbours and local rigid transforms", 0, 5)
+    tf = local_transforms(traj, cfg, rng)
     report("epsilon_a-neighbours", 2, 5)
     i, j, dist = candidate_pairs(traj, cfg.epsilon_a, cfg.near_neighbors, cfg.max_neighbors, rng)
     report("errors", 3, 5)

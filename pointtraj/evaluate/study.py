@@ -163,22 +163,15 @@ def affinity_effectiveness(
     from ..affinity import (
         AffinityConfig,
         candidate_pairs,
-        filter_neighbors,
-        fit_local_rigid,
+        local_transforms,
         pair_errors,
-        sample_neighbors,
         symmetric_affinity,
     )
     from .metrics import disagreement_by_distance
 
     cfg = affinity_config or AffinityConfig()
     rng = np.random.default_rng([seed, 0])
-    nb = filter_neighbors(
-        trajectories,
-        sample_neighbors(trajectories, cfg.epsilon, cfg.rigid_neighbors, rng),
-        cfg.epsilon,
-    )
-    tf = fit_local_rigid(trajectories, nb, cfg)
+    tf = local_transforms(trajectories, cfg, rng)
     i, j, d = candidate_pairs(trajectories, radius, 0, draws, rng)
     labels = np.asarray(labels, np.int64)
     ok = (labels[i] >= 0) & (labels[j] >= 0)
@@ -209,9 +202,14 @@ def affinity_effectiveness(
     }
 
 
+def _longest_lag(smap) -> int:
+    """Frames between the first and last sample of the longest sampled trajectory (-1: none)."""
+    return int(np.diff(smap.sample_offsets).max(initial=0)) - 1
+
+
 def _temporal_lags(smap, fps: float) -> list[tuple[str, int]]:
     """``(name, lag in frames)``: the paper's lags that the samples cover, else the longest ones."""
-    longest = int(np.diff(smap.sample_offsets).max(initial=0)) - 1
+    longest = _longest_lag(smap)
     lags = [(f"{s}s", int(round(s * fps))) for s in PAPER_SECONDS if round(s * fps) <= longest]
     if not lags and longest >= 2:  # a short capture: half and all of its longest lifetime
         for n in sorted({longest // 2, longest}):
@@ -375,16 +373,11 @@ def _temporal_section(smap, folder: Path, metrics: dict) -> Section:
         figures.append("temporal.png")
     else:
         text.append(
-            f"This capture is {smap_duration(smap):.2g} s long, shorter than the paper's "
+            f"This capture is {_longest_lag(smap) / smap.fps:.2g} s long, shorter than the paper's "
             "shortest lag (1 s); the paper's view pooling keeps 0.96 at 1 s and 0.79 at 15 s, "
             "its average pooling about 0.43."
         )
     return Section("Temporal consistency of the 3D semantic map", "\n".join(text), figures)
-
-
-def smap_duration(smap) -> float:
-    """Longest sampled lifetime of a semantic map, seconds."""
-    return (int(np.diff(smap.sample_offsets).max(initial=1)) - 1) / smap.fps
 
 
 def _affinity_section(traj, labels_for_study, source: str, cfg, aff_cfg, folder, metrics):
