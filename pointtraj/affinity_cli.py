@@ -20,7 +20,10 @@ def _config_from(cls, path: Path | None, table: str, overrides: dict):
 
     data: dict = {}
     if path is not None:
-        doc = load_toml(path)
+        try:
+            doc = load_toml(path)
+        except PointtrajError as exc:  # unreadable or invalid TOML: one line, no traceback
+            raise click.UsageError(str(exc)) from None
         data = dict(doc.get(table, {}))
     data.update({k: v for k, v in overrides.items() if v is not None})
     try:

@@ -44,7 +44,7 @@ def evaluate(work: Path, capture: Path | None, config_path: Path | None, **optio
     if config_path is not None:
         from ..config import load_toml
 
-        if "semantics" in load_toml(config_path):
+        if "semantics" in load_toml(config_path):  # readable: _config_from checked it
             semantics = _config_from(SemanticsStageConfig, config_path, "semantics", {})
     bars = ProgressBars()
     try:

@@ -130,6 +130,11 @@ def test_bad_input(tmp_path, gt_work):
         EvaluateConfig(affinity_bin=2.0)
     res = CliRunner().invoke(main, ["evaluate", str(tmp_path)])
     assert res.exit_code == 1 and "trajectories.npz: no such file" in res.output
+    bad = tmp_path / "bad.toml"
+    bad.write_text("x\n", encoding="utf-8")
+    res = CliRunner().invoke(main, ["evaluate", str(gt_work[1]), "--config", str(bad)])
+    assert res.exit_code == 2 and "bad.toml: invalid TOML" in res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit)
 
 
 def test_evaluate_command(gt_work):
