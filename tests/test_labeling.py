@@ -64,6 +64,39 @@ def test_single_move_is_the_optimal_expansion(seed):
         )
 
 
+@pytest.mark.parametrize("seed", range(12))
+def test_pruned_trajectories_never_take_alpha_in_an_optimal_move(seed):
+    """_prune_fixed is exact: the move on the pruned set is as good as on the whole set."""
+    from pointtraj.labeling import _Adjacency, _prune_fixed
+
+    rng = np.random.default_rng(300 + seed)
+    M, K = 9, 3
+    D, row, col, weight = random_graph(rng, M, K, p=0.4)
+    D = D * rng.choice([0.3, 3.0], size=(M, 1))  # some strongly held labels, some weak
+    labels = rng.integers(0, K, M)
+    lam_w = 1.2 * weight
+    adj = _Adjacency(M, row, col)
+    pruned_any = False
+    for alpha in range(K):
+        everyone = labels != alpha
+        free = _prune_fixed(everyone, alpha, labels, D, lam_w, adj)
+        assert np.all(free <= everyone)
+        pruned_any |= bool((everyone & ~free).any())
+        best = best_expansion_energy(labels, alpha, D, row, col, weight, 1.2)
+        # brute force over the moves of the pruned set reaches the same optimum
+        cand = np.flatnonzero(free)
+        restricted = labeling_energy(labels, D, row, col, weight, 1.2)
+        for bits in itertools.product([False, True], repeat=cand.size):
+            lab = labels.copy()
+            lab[cand[np.array(bits, dtype=bool)]] = alpha
+            restricted = min(restricted, labeling_energy(lab, D, row, col, weight, 1.2))
+        assert restricted == pytest.approx(best, abs=1e-9)
+        new = expand_alpha(labels, alpha, free, D, row, col, lam_w)
+        assert labeling_energy(new, D, row, col, weight, 1.2) == pytest.approx(best, abs=1e-9)
+    if seed == 0:
+        assert pruned_any  # the test exercises the pruning
+
+
 @pytest.mark.parametrize("method", ["restricted", "full"])
 @pytest.mark.parametrize("seed", range(8))
 def test_result_is_local_minimum_within_bound(seed, method):
