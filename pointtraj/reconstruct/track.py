@@ -104,6 +104,17 @@ class ReconstructConfig:
         bounds the matching cost of large rigs.
     match_every : int
         Run dense matching (new trajectories) every this many frames (1: every frame, the paper).
+    expand_views : bool
+        View expansion: after each frame, look for every point in the cameras that should see it
+        (in the image, not occluded, not yet observing it) by Lucas-Kanade flow from its nearest
+        observing camera, started at the point's projection (:func:`expand_views`); accepted
+        views join a RANSAC re-triangulation. Matches chain into mostly two-view tracks, so
+        without it most points are seen, tracked and pooled in two cameras only.
+    expand_max_angle_deg : float
+        A camera is searched from an observing camera whose optical axis is at most this far
+        from its own (the flow's patch must look alike in both).
+    expand_px : float
+        The flow's result must lie within this many pixels of the point's projection.
     seed : int
         Seed of the RANSAC sampling.
     matching : MatchingConfig
@@ -128,6 +139,9 @@ class ReconstructConfig:
     max_angle_deg: float = 90.0
     max_pairs_per_camera: int = 0
     match_every: int = 1
+    expand_views: bool = True
+    expand_max_angle_deg: float = 40.0
+    expand_px: float = 2.0
     seed: int = 0
     matching: MatchingConfig = field(default_factory=MatchingConfig)
 
@@ -150,6 +164,8 @@ class ReconstructConfig:
             "max_angle_deg": 0 < self.max_angle_deg <= 180,
             "max_pairs_per_camera": self.max_pairs_per_camera >= 0,
             "match_every": self.match_every >= 1,
+            "expand_max_angle_deg": 0 < self.expand_max_angle_deg <= 180,
+            "expand_px": self.expand_px > 0,
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
@@ -305,6 +321,121 @@ def track_flow(
         & (p1[:, 1] < h - 0.5)
     )
     out[idx[good]] = p1[good]
+    return out
+
+
+def expand_views(
+    rig: CameraRig,
+    grey: Sequence[np.ndarray],
+    points: np.ndarray,
+    pixels: np.ndarray,
+    candidates: np.ndarray,
+    *,
+    max_angle_deg: float = 40.0,
+    max_px: float = 2.0,
+    window: int = 21,
+    levels: int = 1,
+    fb_max_px: float = 1.0,
+    projection=None,
+) -> np.ndarray:
+    """Find points in more cameras by flow from an observing camera (view expansion).
+
+    For each candidate (camera c, point n), the observing camera r of n whose optical axis is
+    nearest c's gives the patch: Lucas-Kanade flow from ``pixels[r, n]`` in image r to image c,
+    started at the point's projection into c, then back (forward-backward check). The view is
+    accepted where the flow converges, comes back within ``fb_max_px`` and ends within
+    ``max_px`` of the projection. One flow call per (r, c) camera pair.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    grey : list of C (H, W) uint8 ndarrays
+        The frame's grey images.
+    points : (N, 3) float ndarray
+    pixels : (C, N, 2) float ndarray
+        The observations so far (NaN where a camera does not observe the point).
+    candidates : (C, N) bool ndarray
+        Where to search (e.g. in the image, not occluded, not observed).
+    max_angle_deg : float
+        Largest angle between the optical axes of r and c.
+    max_px, window, levels, fb_max_px
+        Acceptance distance to the projection, flow window, pyramid levels and the
+        forward-backward tolerance.
+    projection : Projection, optional
+        ``rig.project(points)`` when the caller has it.
+
+    Returns
+    -------
+    (C, N, 2) float64 ndarray
+        ``pixels`` with the accepted new observations filled in.
+    """
+    import cv2
+
+    C = len(rig)
+    pix = check_array("pixels", pixels, (C, None, 2)).astype(np.float64)
+    N = pix.shape[1]
+    cand = check_array("candidates", candidates, (C, N), dtype=bool)
+    out = pix.copy()
+    observed = np.all(np.isfinite(pix), axis=2)  # (C, N)
+    cand = cand & ~observed & observed.any(axis=0)[None, :]
+    if not cand.any():
+        return out
+    proj = rig.project(points) if projection is None else projection
+    axes = np.stack([cam.viewing_direction for cam in rig])  # (C, 3)
+    angle = np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))  # (C, C)
+    win = (window, window)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+    flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+    for c in np.flatnonzero(cand.any(axis=1)):
+        n_c = np.flatnonzero(cand[c])
+        # nearest observing camera (by optical axis) of each candidate point
+        ang = np.where(observed[:, n_c], angle[c][:, None], np.inf)  # (C, n)
+        ref = np.argmin(ang, axis=0)
+        ok = ang[ref, np.arange(n_c.size)] <= max_angle_deg
+        n_c, ref = n_c[ok], ref[ok]
+        h, w = grey[c].shape[:2]
+        for r in np.unique(ref):
+            n = n_c[ref == r]
+            p0 = np.ascontiguousarray(pix[r, n], dtype=np.float32).reshape(-1, 1, 2)
+            guess = np.ascontiguousarray(proj.pixels[c, n], dtype=np.float32).reshape(-1, 1, 2)
+            p1, st1, _ = cv2.calcOpticalFlowPyrLK(
+                grey[r],
+                grey[c],
+                p0,
+                guess.copy(),
+                winSize=win,
+                maxLevel=levels,
+                criteria=crit,
+                flags=flags,
+            )
+            back, st2, _ = cv2.calcOpticalFlowPyrLK(
+                grey[c],
+                grey[r],
+                p1,
+                p0.copy(),
+                winSize=win,
+                maxLevel=levels,
+                criteria=crit,
+                flags=flags,
+            )
+            p1, back, guess = p1.reshape(-1, 2), back.reshape(-1, 2), guess.reshape(-1, 2)
+            good = (
+                (st1.ravel() == 1)
+                & (st2.ravel() == 1)
+                & (np.linalg.norm(back - p0.reshape(-1, 2), axis=1) <= fb_max_px)
+                & (np.linalg.norm(p1 - guess, axis=1) <= max_px)
+                & (p1[:, 0] >= -0.5)
+                & (p1[:, 0] < w - 0.5)
+                & (p1[:, 1] >= -0.5)
+                & (p1[:, 1] < h - 0.5)
+            )
+            out[c, n[good]] = p1[good]
+    logger.debug(
+        "view expansion: %d of %d candidate views accepted",
+        int(np.all(np.isfinite(out), axis=2).sum() - observed.sum()),
+        int(cand.sum()),
+    )
     return out
 
 
@@ -546,6 +677,8 @@ class Tracker:
         )  # (C, N, 2)
         n_old = int(keep_old.sum())
         old_ids = st.ids[keep_old]
+        if cfg.expand_views and len(xyz):
+            xyz, vis, err, pix = self._expand(grey, xyz, vis, err, pix)
         if cfg.occlusion_depth_m > 0 and len(xyz):
             from .triangulate import occlusion_test
 
@@ -577,6 +710,63 @@ class Tracker:
             color=sample_colors(images, pix, vis),
             num_new=n_new,
         )
+
+    def _expand(
+        self,
+        grey: list[np.ndarray],
+        xyz: np.ndarray,
+        vis: np.ndarray,
+        err: np.ndarray,
+        pix: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """View expansion (:func:`expand_views`) and re-triangulation of the points it grew."""
+        from .triangulate import occlusion_test, triangulate_ransac
+
+        cfg = self.config
+        proj = self.rig.project(xyz)
+        cand = proj.in_image
+        if cfg.occlusion_depth_m > 0:
+            occ = occlusion_test(
+                self.rig,
+                xyz,
+                cfg.occlusion_depth_m,
+                cell_px=cfg.occlusion_cell_px,
+                projection=proj,
+            )
+            cand = cand & ~occ.T
+        grown = expand_views(
+            self.rig,
+            grey,
+            xyz,
+            pix,
+            cand,
+            max_angle_deg=cfg.expand_max_angle_deg,
+            max_px=cfg.expand_px,
+            window=cfg.lk_window,
+            fb_max_px=cfg.fb_max_px,
+            projection=proj,
+        )
+        more = np.flatnonzero(
+            np.all(np.isfinite(grown), axis=2).sum(axis=0)
+            > np.all(np.isfinite(pix), axis=2).sum(axis=0)
+        )
+        if more.size == 0:
+            return xyz, vis, err, pix
+        tri = triangulate_ransac(self.rig, grown[:, more], self.tri_config)
+        ok = self._alive(tri)
+        idx = more[ok]
+        xyz, vis, err, pix = xyz.copy(), vis.copy(), err.copy(), pix.copy()
+        xyz[idx] = tri.points[ok]
+        vis[idx] = tri.visibility[ok]
+        err[idx] = tri.mean_error[ok]
+        pix[:, idx] = np.where(tri.inliers[:, ok, None], grown[:, idx], np.nan)
+        logger.debug(
+            "view expansion: %d points gained views (%.2f views per point, was %.2f)",
+            idx.size,
+            np.all(np.isfinite(pix), axis=2).sum() / max(len(xyz), 1),
+            np.all(np.isfinite(grown), axis=2).sum() / max(len(xyz), 1),
+        )
+        return xyz, vis, err, pix
 
     def _alive(self, tri: Triangulation) -> np.ndarray:
         cfg = self.config

@@ -15,6 +15,7 @@ from pointtraj.reconstruct.track import (
     Tracker,
     assemble_trajectories,
     covered_by,
+    expand_views,
     sample_colors,
     select_edges,
     track_flow,
@@ -242,3 +243,34 @@ def test_tracker_can_start_flow_at_the_previous_observations(moving_plane):
     d = traj.dense_positions(full)
     drift = np.linalg.norm(d[:, -1] - d[:, 0] - 2 * VELOCITY, axis=1)
     assert np.median(drift) < 0.003
+
+
+def test_expand_views_finds_points_in_the_cameras_that_miss_them(moving_plane):
+    """Points observed in cameras 0 and 1 only are found in camera 2 at their true pixels."""
+    rig, frames = moving_plane
+    grey = [np.ascontiguousarray(im[..., 0]) for im in frames[0]]
+    rng = np.random.default_rng(2)
+    X = np.column_stack([rng.uniform(-0.5, 0.5, (300, 2)), np.zeros(300)])  # on the plane z = 0
+    true = rig.project(X).pixels  # (3, N, 2)
+    pix = true.copy()
+    pix[2] = np.nan
+    pix[0, :100] = np.nan  # 100 points seen only by camera 1
+    cand = np.ones((3, 300), bool)
+    # a wrong 3D point (15 cm in front of the plane) projects off its patch in camera 2
+    X_bad = X.copy()
+    X_bad[200:] += [0.0, 0.0, 0.15]
+    out = expand_views(rig, grey, X_bad, pix, cand, max_angle_deg=40.0, max_px=2.0)
+    seen = np.isfinite(pix)
+    np.testing.assert_array_equal(out[seen], pix[seen])  # observed views unchanged
+    found = np.all(np.isfinite(out[2]), axis=1)
+    assert found[:200].mean() > 0.9
+    err = np.linalg.norm(out[2, :200][found[:200]] - true[2, :200][found[:200]], axis=1)
+    assert np.median(err) < 0.2 and np.percentile(err, 95) < 0.5
+    assert found[200:].mean() < 0.1  # the flow lands on the true patch, far from the projection
+    # points seen by camera 1 alone are found in camera 0 as well
+    back = np.all(np.isfinite(out[0, :100]), axis=1)
+    assert back.mean() > 0.9
+    assert np.median(np.linalg.norm(out[0, :100][back] - true[0, :100][back], axis=1)) < 0.2
+    # no camera within the angle: nothing is searched
+    none = expand_views(rig, grey, X, pix, cand, max_angle_deg=1.0)
+    assert not np.isfinite(none[2]).any()
