@@ -73,7 +73,11 @@ class MatchingConfig:
     guided : bool
         Epipolar-guided matching: each keypoint is compared only with the keypoints of the other
         image within ``epipolar_px`` of its epipolar line (known calibration), with Lowe's ratio
-        test. Far more matches across wide baselines than unguided nearest neighbours.
+        test. Far more matches across wide baselines than unguided nearest neighbours, and
+        about 3 times faster than brute force (0.044 s against 0.13 s a pair of 6,500-feature
+        1280x1024 images), but the nearest neighbour in a band is a weaker test than the global
+        one: on repeated textures (the synthetic floor) it lets through wrong matches that two
+        views cannot reject, so it is off by default.
     ratio : float
         Ratio test of guided matching (best / second-best Hamming distance).
     gms : bool
@@ -249,11 +253,22 @@ def epipolar_distances(
     pb = check_array("pixels_b", pixels_b, (pa.shape[0], 2))
     xa = _normalized(rig, cam_a, pa)  # (N, 2)
     xb = _normalized(rig, cam_b, pb)
-    Ra, Rb = rig.R[cam_a], rig.R[cam_b]
-    R = Rb @ Ra.T
-    t = Rb @ (rig.C[cam_a] - rig.C[cam_b])
+    return _epipolar_normalized(rig, cam_a, cam_b, xa, xb)
+
+
+def _essential(rig: CameraRig, cam_a: int, cam_b: int) -> np.ndarray:
+    """(3, 3) essential matrix with ``x_b^T E x_a = 0`` in normalised coordinates."""
+    R = rig.R[cam_b] @ rig.R[cam_a].T
+    t = rig.R[cam_b] @ (rig.C[cam_a] - rig.C[cam_b])
     tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    E = tx @ R  # x_b^T E x_a = 0
+    return tx @ R
+
+
+def _epipolar_normalized(
+    rig: CameraRig, cam_a: int, cam_b: int, xa: np.ndarray, xb: np.ndarray
+) -> np.ndarray:
+    """:func:`epipolar_distances` of undistorted normalised coordinates ``(N, 2)``."""
+    E = _essential(rig, cam_a, cam_b)
     ha = np.concatenate([xa, np.ones((len(xa), 1))], axis=1)  # (N, 3)
     hb = np.concatenate([xb, np.ones((len(xb), 1))], axis=1)
     lb = ha @ E.T  # (N, 3) lines in image b
@@ -301,14 +316,8 @@ def match_pair(
     if len(features_a) < 2 or len(features_b) < 2:
         return np.zeros((0, 2), np.int64)
     if cfg.guided:
-        raw = _guided_matches(rig, cam_a, cam_b, features_a, features_b, cfg)
-        if cfg.cross_check and raw:  # keep mutual nearest neighbours only
-            back = _guided_matches(rig, cam_b, cam_a, features_b, features_a, cfg)
-            fwd = np.array([(m.queryIdx, m.trainIdx) for m in raw], dtype=np.int64)
-            bwd = np.array([(m.trainIdx, m.queryIdx) for m in back], dtype=np.int64).reshape(-1, 2)
-            nb = len(features_b)
-            mutual = np.isin(fwd[:, 0] * nb + fwd[:, 1], bwd[:, 0] * nb + bwd[:, 1])
-            raw = [m for m, ok in zip(raw, mutual.tolist()) if ok]
+        pairs, dist = _guided_matches(rig, cam_a, cam_b, features_a, features_b, cfg)
+        raw = [cv2.DMatch(int(q), int(t), float(d)) for (q, t), d in zip(pairs.tolist(), dist)]
     else:
         raw = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=cfg.cross_check).match(
             features_a.descriptors, features_b.descriptors
@@ -345,6 +354,35 @@ def match_pair(
     return pairs[keep]
 
 
+def _epipolar_angles(rig: CameraRig, cam: int, x: np.ndarray, basis: np.ndarray) -> tuple:
+    """Epipolar-plane angle and the sine of the ray's angle to the baseline, per keypoint.
+
+    Every epipolar plane of a camera pair contains the baseline ``u``; its normal
+    ``u × d`` (``d`` the world direction of a keypoint's ray) is the same for the two rays of a
+    3D point, so matching keypoints share the angle of that normal about ``u``.
+
+    Parameters
+    ----------
+    rig : CameraRig
+    cam : int
+    x : (N, 2) float ndarray
+        Undistorted normalised coordinates.
+    basis : (3, 3) float ndarray
+        Rows ``u, e1, e2``: the unit baseline and two unit vectors orthogonal to it.
+
+    Returns
+    -------
+    phi : (N,) float ndarray
+        Angle in (-π, π].
+    sin_theta : (N,) float ndarray
+        Sine of the angle between the ray and the baseline.
+    """
+    d = np.concatenate([x, np.ones((len(x), 1))], axis=1) @ rig.R[cam]  # (N, 3) = (R^T h)^T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    n = np.cross(basis[0], d)  # (N, 3), |n| = sin(theta)
+    return np.arctan2(n @ basis[2], n @ basis[1]), np.linalg.norm(n, axis=1)
+
+
 def _guided_matches(
     rig: CameraRig,
     cam_a: int,
@@ -352,39 +390,117 @@ def _guided_matches(
     features_a: Features,
     features_b: Features,
     cfg: MatchingConfig,
-    chunk: int = 2048,
-) -> list:
-    """Nearest neighbours within the epipolar band, with the ratio test (cv2.DMatch list)."""
-    import cv2
+    chunk: int = 4096,
+    margin: float = 1.25,
+    max_window: float = 0.05,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest neighbours within the epipolar band, with the ratio test (vectorised).
 
+    Keypoints of b are sorted by their epipolar-plane angle (:func:`_epipolar_angles`); each
+    keypoint of a looks at those within an angular window of ``margin`` times ``epipolar_px``
+    over the focal length, divided by the sine of its ray's angle to the baseline (a pixel
+    subtends at most about ``1 / f``; at most ``max_window`` radians, so keypoints near the
+    epipole get no more candidates than that), and compares its descriptor with those that
+    pass :func:`epipolar_distances`' test exactly (``max(d_a, d_b) <= epipolar_px``, computed
+    from per-keypoint epipolar lines). Hamming distances are popcounts of 64-bit words; the
+    nearest and second nearest per keypoint come from ``minimum.reduceat`` over its candidates
+    (no sort). With ``cfg.cross_check`` only mutual nearest
+    neighbours within the bands are kept.
+
+    Returns
+    -------
+    pairs : (Q, 2) int64 ndarray
+        Keypoint indices ``(i_a, i_b)``.
+    distance : (Q,) int64 ndarray
+        Hamming distances.
+    """
+    Ca, Cb = rig.C[cam_a], rig.C[cam_b]
+    u = Cb - Ca
+    base = float(np.linalg.norm(u))
+    if base < 1e-12:  # no baseline: no epipolar geometry
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    u = u / base
+    e1 = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    basis = np.stack([u, e1, np.cross(u, e1)])
     xa = _normalized(rig, cam_a, features_a.pixels.astype(np.float64))
     xb = _normalized(rig, cam_b, features_b.pixels.astype(np.float64))
-    R = rig.R[cam_b] @ rig.R[cam_a].T
-    t = rig.R[cam_b] @ (rig.C[cam_a] - rig.C[cam_b])
-    E = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ R
+    phi_a, sin_a = _epipolar_angles(rig, cam_a, xa, basis)
+    phi_b, _ = _epipolar_angles(rig, cam_b, xb, basis)
+    # search window: the band's angular half-width seen from a (a pixel subtends about 1 / f)
+    tol_a = cfg.epipolar_px / rig.K[cam_a, 0, 0] / np.maximum(sin_a, 1e-6)
+    window = np.minimum(margin * tol_a, max_window)
+    # exact band test per candidate (as epipolar_distances), from per-keypoint lines
+    E = _essential(rig, cam_a, cam_b)
     ha = np.concatenate([xa, np.ones((len(xa), 1))], axis=1)  # (Na, 3)
-    hb = np.concatenate([xb, np.ones((len(xb), 1))], axis=1).T  # (3, Nb)
-    tol = cfg.epipolar_px / rig.K[cam_b, 0, 0]  # band half-width, normalised units of b
-    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    out = []
-    for s in range(0, len(ha), chunk):  # bounded (chunk, Nb) band masks
-        lines = ha[s : s + chunk] @ E.T  # (n, 3) epipolar lines in b
-        norm = np.hypot(lines[:, 0], lines[:, 1])[:, None]
-        mask = (np.abs(lines @ hb) <= tol * norm).astype(np.uint8)  # (n, Nb)
-        knn = bf.knnMatch(
-            features_a.descriptors[s : s + chunk], features_b.descriptors, k=2, mask=mask
-        )
-        best = np.array(
-            [
-                (c[0].queryIdx, c[0].trainIdx, c[0].distance, c[1].distance if len(c) > 1 else 1e9)
-                for c in knn
-                if c
-            ],
-            dtype=np.float64,
-        ).reshape(-1, 4)  # (n', 4): query, train, best, second-best distance
-        ok = best[:, 2] < cfg.ratio * best[:, 3]
-        out += [cv2.DMatch(int(q) + s, int(tr), float(d)) for q, tr, d in best[ok, :3].tolist()]
-    return out
+    hb = np.concatenate([xb, np.ones((len(xb), 1))], axis=1)  # (Nb, 3)
+    line_b = ha @ E.T  # (Na, 3) epipolar line of each a keypoint in image b
+    line_a = hb @ E  # (Nb, 3) and of each b keypoint in image a
+    with np.errstate(divide="ignore"):
+        scale_a = rig.K[cam_b, 0, 0] / np.hypot(line_b[:, 0], line_b[:, 1])  # (Na,)
+        scale_b = rig.K[cam_a, 0, 0] / np.hypot(line_a[:, 0], line_a[:, 1])  # (Nb,)
+    nb = phi_b.size
+    order = np.argsort(phi_b)
+    # wrap around ±π: the sorted angles with copies shifted by ∓2π on either side
+    ext_phi = np.concatenate([phi_b[order] - 2 * np.pi, phi_b[order], phi_b[order] + 2 * np.pi])
+    ext_idx = np.tile(order, 3)
+    words_a = np.ascontiguousarray(features_a.descriptors).view(np.uint64)  # (Na, 4)
+    words_b = np.ascontiguousarray(features_b.descriptors).view(np.uint64)
+    big = np.iinfo(np.int64).max
+    out_a, out_b, out_d, mutual_cand = [], [], [], []
+    for s in range(0, phi_a.size, chunk):  # bounded candidate arrays
+        lo = np.searchsorted(ext_phi, phi_a[s : s + chunk] - window[s : s + chunk], side="left")
+        hi = np.searchsorted(ext_phi, phi_a[s : s + chunk] + window[s : s + chunk], side="right")
+        cnt = hi - lo
+        nz = np.flatnonzero(cnt > 0)
+        if nz.size == 0:
+            continue
+        cnt, lo = cnt[nz], lo[nz]
+        total = int(cnt.sum())
+        starts = np.cumsum(cnt) - cnt
+        own = np.repeat(s + nz, cnt)
+        pos = np.repeat(lo - starts, cnt) + np.arange(total)
+        trn = ext_idx[pos]
+        # inside the band in both images: max(d_a, d_b) <= epipolar_px
+        alg = np.abs(np.einsum("ij,ij->i", line_b[own], hb[trn]))
+        inside = alg * np.fmax(scale_a[own], scale_b[trn]) <= cfg.epipolar_px
+        own, trn = own[inside], trn[inside]
+        if own.size == 0:
+            continue
+        starts = np.flatnonzero(np.r_[True, own[1:] != own[:-1]])  # (G,) one group per a
+        cnt = np.diff(np.r_[starts, own.size])
+        dist = np.bitwise_count(words_a[own] ^ words_b[trn]).sum(axis=1, dtype=np.int64)
+        best = np.minimum.reduceat(dist, starts)  # (G,)
+        # position of the (first) best of each group, then the second best without it
+        hit = np.flatnonzero(dist == np.repeat(best, cnt))
+        grp = np.repeat(np.arange(starts.size), cnt)[hit]
+        first = np.r_[True, grp[1:] != grp[:-1]]
+        best_pos = hit[first]
+        masked = dist.copy()
+        masked[best_pos] = big
+        second = np.minimum.reduceat(masked, starts)
+        keep = (cnt == 1) | (best < cfg.ratio * second)
+        out_a.append(own[best_pos[keep]])
+        out_b.append(trn[best_pos[keep]])
+        out_d.append(best[keep])
+        if cfg.cross_check:
+            mutual_cand.append((own, trn, dist))
+    if not out_a:
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    pairs = np.stack([np.concatenate(out_a), np.concatenate(out_b)], axis=1)
+    best_dist = np.concatenate(out_d)
+    if cfg.cross_check and pairs.size:
+        # mutual: the b keypoint's nearest a keypoint within the bands is the same
+        own = np.concatenate([c[0] for c in mutual_cand])
+        trn = np.concatenate([c[1] for c in mutual_cand])
+        dist = np.concatenate([c[2] for c in mutual_cand])
+        ob = np.lexsort((dist, trn))
+        head = ob[np.r_[True, trn[ob][1:] != trn[ob][:-1]]]
+        back = np.full(nb, -1, np.int64)
+        back[trn[head]] = own[head]
+        mutual = back[pairs[:, 1]] == pairs[:, 0]
+        pairs, best_dist = pairs[mutual], best_dist[mutual]
+    return pairs, best_dist
 
 
 def build_tracks(

@@ -218,3 +218,57 @@ def test_match_frame_validates_inputs(plane_scene):
         match_frame(rig, images, np.array([[0, 5]]))
     with pytest.raises(ValidationError, match="the rig says 480x360"):
         match_frame(rig, [images[0][:100]] + images[1:], np.array([[0, 1]]))
+
+
+def _features(pixels: np.ndarray, descriptors: np.ndarray, size=(480, 360)) -> Features:
+    import cv2
+
+    kps = [cv2.KeyPoint(float(x), float(y), 31.0) for x, y in pixels]
+    return Features(pixels.astype(np.float32), descriptors, kps, size)
+
+
+@pytest.mark.parametrize("cross_check", [False, True])
+def test_guided_matching_equals_brute_force_within_the_band(cross_check):
+    """The vectorised band search finds each keypoint's Hamming nearest neighbour in its band."""
+    from pointtraj.reconstruct.matching import _guided_matches
+
+    rng = np.random.default_rng(5)
+    rig = plane_rig(2, dist=[-0.1, 0.02, 0.0, 0.0, 0.0])
+    X = rng.uniform(-0.6, 0.6, (400, 3))
+    pix = rig.project(X).pixels
+    inside = np.all(np.isfinite(pix), axis=(0, 2))
+    pa, pb = pix[0][inside], pix[1][inside] + rng.normal(0, 0.3, pix[1][inside].shape)
+    desc_a = rng.integers(0, 256, (len(pa), 32), dtype=np.uint8)
+    flips = rng.random(desc_a.shape) < 0.05  # true matches differ by a few bits
+    desc_b = desc_a ^ (flips * rng.integers(1, 256, desc_a.shape)).astype(np.uint8)
+    # distractors: the exact descriptor of an a keypoint, far off its epipolar line
+    off = np.column_stack([rng.uniform(0, 480, 60), rng.uniform(0, 360, 60)])
+    off = off[epipolar_distances(rig, 0, 1, pa[:60], off) > 10.0]
+    pb_all = np.vstack([pb, off])
+    desc_b_all = np.vstack([desc_b, desc_a[: len(off)]])
+    fa, fb = _features(pa, desc_a), _features(pb_all, desc_b_all)
+    cfg = MatchingConfig(
+        guided=True, gms=False, epipolar_px=2.5, ratio=0.8, cross_check=cross_check
+    )
+    pairs, dist = _guided_matches(rig, 0, 1, fa, fb, cfg)
+    # reference: for every a keypoint, the b keypoints whose epipolar distance is within the
+    # band; nearest and second nearest by Hamming distance
+    bits = np.unpackbits(desc_a[:, None, :] ^ desc_b_all[None, :, :], axis=2).sum(axis=2)
+    band = (
+        np.stack(
+            [
+                epipolar_distances(rig, 0, 1, np.repeat(pa[i : i + 1], len(pb_all), 0), pb_all)
+                for i in range(len(pa))
+            ]
+        )
+        <= 2.5
+    )
+    got = {tuple(p) for p in pairs.tolist()}
+    assert len(got) > 0.9 * len(pa)
+    for i, j in got:
+        assert band[i, j]  # within the band
+        assert bits[i, j] == bits[i][band[i]].min()  # the nearest within it
+        assert j < len(pb)  # never a distractor off the line
+    assert np.all(dist == bits[pairs[:, 0], pairs[:, 1]])
+    # nearly every keypoint finds its true partner (the distractors are off the line)
+    assert np.mean(pairs[:, 0] == pairs[:, 1]) > 0.98
