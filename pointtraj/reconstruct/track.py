@@ -386,7 +386,12 @@ def expand_views(
     angle = np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))  # (C, C)
     win = (window, window)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
-    flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+    lk = {
+        "winSize": win,
+        "maxLevel": levels,
+        "criteria": crit,
+        "flags": cv2.OPTFLOW_USE_INITIAL_FLOW,
+    }
     for c in np.flatnonzero(cand.any(axis=1)):
         n_c = np.flatnonzero(cand[c])
         # nearest observing camera (by optical axis) of each candidate point
@@ -399,26 +404,8 @@ def expand_views(
             n = n_c[ref == r]
             p0 = np.ascontiguousarray(pix[r, n], dtype=np.float32).reshape(-1, 1, 2)
             guess = np.ascontiguousarray(proj.pixels[c, n], dtype=np.float32).reshape(-1, 1, 2)
-            p1, st1, _ = cv2.calcOpticalFlowPyrLK(
-                grey[r],
-                grey[c],
-                p0,
-                guess.copy(),
-                winSize=win,
-                maxLevel=levels,
-                criteria=crit,
-                flags=flags,
-            )
-            back, st2, _ = cv2.calcOpticalFlowPyrLK(
-                grey[c],
-                grey[r],
-                p1,
-                p0.copy(),
-                winSize=win,
-                maxLevel=levels,
-                criteria=crit,
-                flags=flags,
-            )
+            p1, st1, _ = cv2.calcOpticalFlowPyrLK(grey[r], grey[c], p0, guess.copy(), **lk)
+            back, st2, _ = cv2.calcOpticalFlowPyrLK(grey[c], grey[r], p1, p0.copy(), **lk)
             p1, back, guess = p1.reshape(-1, 2), back.reshape(-1, 2), guess.reshape(-1, 2)
             good = (
                 (st1.ravel() == 1)
