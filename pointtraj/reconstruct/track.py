@@ -100,8 +100,10 @@ class ReconstructConfig:
     max_angle_deg : float
         Camera pairs whose optical axes differ by more are not matched (connectivity graph).
     max_pairs_per_camera : int
-        Keep only this many best-connected partners per camera (0: all within ``max_angle_deg``);
-        bounds the matching cost of large rigs.
+        Keep only this many smallest-angle partners per camera (0: all within
+        ``max_angle_deg``); bounds the matching cost of large rigs. Rigs of up to 13 cameras
+        keep every pair; on the paper's 69 cameras 12 partners give the same points and
+        errors as all 1266 pairs at 2.5 times less CPU (``benchmarks/bench_matching.py``).
     match_every : int
         Run dense matching (new trajectories) every this many frames (1: every frame, the paper).
     expand_views : bool
@@ -137,7 +139,7 @@ class ReconstructConfig:
     occlusion_depth_m: float = 0.05
     occlusion_cell_px: float = 8.0
     max_angle_deg: float = 90.0
-    max_pairs_per_camera: int = 0
+    max_pairs_per_camera: int = 12
     match_every: int = 1
     expand_views: bool = True
     expand_max_angle_deg: float = 40.0
