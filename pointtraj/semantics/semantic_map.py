@@ -29,7 +29,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from ..atomic import save_npz_atomic
-from ..errors import FileFormatError, ValidationError
+from ..errors import FileFormatError, ValidationError, check_array
 from ..trajectories import Trajectories
 from .pooling import POOLINGS, pool_views
 from .recognizers.base import ImageContext, Recognizer
@@ -296,7 +296,7 @@ class SemanticMap:
         return pooling
 
     def temporal_consistency(
-        self, lag: int, pooling: str | None = None
+        self, lag: int, pooling: str | None = None, trajectories: np.ndarray | None = None
     ) -> tuple[float, float, int]:
         """The paper's temporal consistency: NC between first-frame and later pooled confidences.
 
@@ -306,6 +306,9 @@ class SemanticMap:
             Frames between the two samples (e.g. ``fps`` for 1 s).
         pooling : str, optional
             Default: the map's first pooling.
+        trajectories : (M,) bool ndarray, optional
+            Only these trajectories (e.g. the labelled ones: background trajectories have
+            confidences of noise only, whose NC says nothing about a semantic map).
 
         Returns
         -------
@@ -321,6 +324,14 @@ class SemanticMap:
             raise ValidationError(f"pooling: no per-frame samples kept for {p!r}")
         lengths = np.diff(self.sample_offsets)
         ok = lengths > lag
+        if trajectories is not None:
+            mask = check_array("trajectories", trajectories, (None,), dtype=bool)
+            if mask.size <= (self.sample_tracks.max() if self.sample_tracks.size else -1):
+                raise ValidationError(
+                    f"trajectories: {mask.size} entries, the map samples trajectory "
+                    f"{int(self.sample_tracks.max())}"
+                )
+            ok &= mask[self.sample_tracks]
         start = self.sample_offsets[:-1][ok]
         nc = normalized_correlation(self.samples[p][start], self.samples[p][start + lag])
         nc = nc[np.isfinite(nc)]

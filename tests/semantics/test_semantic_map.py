@@ -213,10 +213,19 @@ def test_sample_budget_limits_sampled_trajectories(scene):
 def test_temporal_consistency_and_nc(scene):
     rig, traj, label = scene
     smap = build_semantic_map(FakeCapture(rig), traj, RasterRecognizer(rig, traj, label))
-    mean, std, n = smap.temporal_consistency(2, "view")
-    assert n > 50 and mean > 0.9
+    mean, std, n2 = smap.temporal_consistency(2, "view")
+    assert n2 > 50 and mean > 0.9
     mean, _, n = smap.temporal_consistency(100, "view")
     assert n == 0 and np.isnan(mean)
+    # restricted to a subset of the trajectories: the count follows the mask
+    mask = np.zeros(len(traj), bool)
+    mask[smap.sample_tracks[::2]] = True
+    _, _, n_half = smap.temporal_consistency(2, "view", mask)
+    _, _, n_all = smap.temporal_consistency(2, "view", np.ones(len(traj), bool))
+    assert n_all == n2 and 0 < n_half < n2
+    assert smap.temporal_consistency(2, "view", np.zeros(len(traj), bool))[2] == 0
+    with pytest.raises(ValidationError, match="trajectories"):
+        smap.temporal_consistency(2, "view", mask[:1])
     nc = normalized_correlation(
         np.array([[1.0, 2, 3], [1, 1, 1]]), np.array([[2.0, 4, 6], [1, 2, 3]])
     )
