@@ -3,8 +3,8 @@
 Reconstructs one frame of a synthetic capture from scratch (matching, triangulation, view
 expansion: one :meth:`pointtraj.reconstruct.track.Tracker.step`) with each matching setting
 and reports the points, the time and the distance of the points to the ground-truth surface
-(the smallest point-to-plane distance over the cameras whose image a point projects into,
-:func:`benchmarks.study_expansion.surface_error`).
+(:func:`pointtraj.evaluate.groundtruth.frame_surface_errors` over every camera whose image a
+point projects into).
 
 Usage (the figures of ``docs/reconstruction.md``; each setting runs in its own process)::
 
@@ -36,8 +36,7 @@ SETTINGS = {
 
 def run(capture: Path, frame: int, setting: dict) -> dict:
     """One setting: reconstruct ``frame`` from scratch and measure it."""
-    from study_expansion import surface_error
-
+    from pointtraj.evaluate.groundtruth import frame_surface_errors
     from pointtraj.reconstruct.matching import MatchingConfig
     from pointtraj.reconstruct.track import ReconstructConfig, Tracker
     from pointtraj.session import Capture
@@ -52,7 +51,7 @@ def run(capture: Path, frame: int, setting: dict) -> dict:
     t0, c0 = time.perf_counter(), time.process_time()
     rec = Tracker(rig, cfg).step(frame, images)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    err = surface_error(capture, rig, frame, rec.xyz.astype(np.float64))
+    err = frame_surface_errors(capture, rig, frame, rec.xyz)
     err = err[np.isfinite(err)]
     return {
         "points": len(rec),
@@ -71,7 +70,6 @@ def main() -> None:
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        sys.path.insert(0, str(Path(__file__).parent))
         print(json.dumps(run(args.capture, args.frame, SETTINGS[args.child])))
         return
     print("| setting | points | wall s | CPU s | error median / p75 / p90 mm | > 5 cm | views |")

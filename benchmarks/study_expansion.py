@@ -6,8 +6,8 @@ frames twice, without and with view expansion (``ReconstructConfig.expand_views`
 new matching in between, so that both runs follow exactly the same points. Reported per
 frame: how many of the starting points are still alive and how many cameras observe a point;
 at the last frame, the distance of the points alive in both runs to the ground-truth surface
-(the smallest point-to-plane distance over the cameras whose image they project into, as
-:func:`pointtraj.evaluate.groundtruth.surface_distance`).
+(:func:`pointtraj.evaluate.groundtruth.frame_surface_errors` over every camera whose image a
+point projects into).
 
 Usage (the figures of ``docs/reconstruction.md``)::
 
@@ -69,22 +69,8 @@ def track_from(capture, work: Path, start: int, frames: int, expand: bool) -> di
     return out
 
 
-def surface_error(capture_path: Path, rig, frame: int, xyz: np.ndarray) -> np.ndarray:
-    """(N,) metres: smallest point-to-surface distance over the cameras that image the point."""
-    from pointtraj.evaluate.groundtruth import surface_distance
-    from pointtraj.synth.groundtruth import load_depth_map
-
-    proj = rig.project(xyz)
-    err = np.full(len(xyz), np.inf)
-    for c, cam in enumerate(rig):
-        m = proj.in_image[c]
-        if m.any():
-            dm = load_depth_map(capture_path, cam.name, frame)
-            err[m] = np.fmin(err[m], surface_distance(cam, dm, xyz[m], proj.pixels[c][m]))
-    return np.where(np.isfinite(err), err, np.nan)
-
-
 def main() -> None:
+    from pointtraj.evaluate.groundtruth import frame_surface_errors
     from pointtraj.session import Capture
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -100,7 +86,8 @@ def main() -> None:
     common, ia, ib = np.intersect1d(last[0].ids, last[1].ids, return_indices=True)
     t_last = last[0].frame
     for run, rec, idx in zip(runs, last, (ia, ib)):
-        e = surface_error(args.capture, capture.rig, t_last, rec.xyz[idx].astype(np.float64))
+        # every camera whose image a point projects into: the runs' visibilities differ
+        e = frame_surface_errors(args.capture, capture.rig, t_last, rec.xyz[idx])
         e = e[np.isfinite(e)]
         run["surface_error_mm_p50_p75_p90"] = [
             round(1000 * v, 2) for v in np.percentile(e, [50, 75, 90])

@@ -62,14 +62,10 @@ def actor_mask(gt, traj, frames: range, radius: float) -> np.ndarray:
 
 def kabsch_batch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rigid (R, t) mapping ``src`` (B, k, 3) onto ``dst`` (B, k, 3), batched."""
+    from pointtraj.affinity import kabsch_rotation
+
     ms, md = src.mean(axis=1, keepdims=True), dst.mean(axis=1, keepdims=True)
-    H = np.einsum("bki,bkj->bij", src - ms, dst - md)  # (B, 3, 3)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.einsum("bji,bkj->bik", Vt, U)))  # det(V U^T)
-    D = np.zeros_like(H)
-    D[:, 0, 0] = D[:, 1, 1] = 1.0
-    D[:, 2, 2] = d
-    R = np.einsum("bji,bjk,blk->bil", Vt, D, U)  # V D U^T
+    R = kabsch_rotation(src - ms, dst - md)  # (B, 3, 3)
     t = md[:, 0] - np.einsum("bij,bj->bi", R, ms[:, 0])
     return R, t
 

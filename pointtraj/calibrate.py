@@ -276,20 +276,10 @@ def umeyama(
     dst = check_array("dst", dst, (src.shape[0], 3), finite=True)
     if src.shape[0] < 3:
         raise ValidationError(f"umeyama needs at least 3 point pairs, got {src.shape[0]}")
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - mu_s, dst - mu_d
-    cov = b.T @ a / len(src)  # (3, 3)
-    U, S, Vt = np.linalg.svd(cov)
-    if S[1] < 1e-12 * max(S[0], 1e-300):
+    s, R, t, ok = _umeyama_batch(src[None], dst[None], with_scale)
+    if not ok[0]:
         raise ValidationError("umeyama: points are degenerate (collinear or coincident)")
-    D = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        D[2, 2] = -1.0
-    R = U @ D @ Vt
-    var_s = (a**2).sum() / len(src)
-    s = float(np.trace(np.diag(S) @ D) / var_s) if with_scale else 1.0
-    t = mu_d - s * R @ mu_s
-    return s, R, t
+    return float(s[0]), R[0], t[0]
 
 
 def transform_rig(rig: CameraRig, s: float, R: np.ndarray, t: np.ndarray) -> CameraRig:

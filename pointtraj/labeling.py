@@ -297,11 +297,14 @@ class _Adjacency:
         self.eid = csr.data
         self.num_edges = int(row.size)
 
-    def gather(self, nodes: np.ndarray, data: np.ndarray) -> np.ndarray:
+    def slots(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions of ``nodes``' adjacency entries, concatenated, and how many each has."""
         start = self.indptr[nodes]
         cnt = self.indptr[nodes + 1] - start
-        idx = np.repeat(start - np.cumsum(cnt) + cnt, cnt) + np.arange(int(cnt.sum()))
-        return data[idx]
+        return np.repeat(start - np.cumsum(cnt) + cnt, cnt) + np.arange(int(cnt.sum())), cnt
+
+    def gather(self, nodes: np.ndarray, data: np.ndarray) -> np.ndarray:
+        return data[self.slots(nodes)[0]]
 
     def neighbours_of(self, mask: np.ndarray) -> np.ndarray:
         """(M,) bool: has an edge to a node in ``mask``."""
@@ -497,10 +500,8 @@ def _prune_fixed(
     while nodes.size:
         li = labels[nodes]
         gain = D[nodes, alpha] - D[nodes, li]
-        start = adj.indptr[nodes]
-        cnt = adj.indptr[nodes + 1] - start
+        idx, cnt = adj.slots(nodes)
         owner = np.repeat(np.arange(nodes.size), cnt)
-        idx = np.repeat(start - np.cumsum(cnt) + cnt, cnt) + np.arange(int(cnt.sum()))
         nbr = adj.nbr[idx]
         w = lam_w[adj.eid[idx]]
         lj = labels[nbr]

@@ -25,6 +25,7 @@ __all__ = [
     "true_labels",
     "voted_labels",
     "surface_distance",
+    "frame_surface_errors",
     "surface_errors",
 ]
 
@@ -188,6 +189,49 @@ def surface_distance(cam, depth_map: np.ndarray, xyz: np.ndarray, pixels: np.nda
     return out
 
 
+def frame_surface_errors(
+    capture: str | os.PathLike,
+    rig,
+    frame: int,
+    xyz: np.ndarray,
+    use: np.ndarray | None = None,
+    projection=None,
+) -> np.ndarray:
+    """Distance of one frame's points to its ground-truth surface, over chosen cameras.
+
+    Parameters
+    ----------
+    capture : path-like
+    rig : CameraRig
+        C cameras.
+    frame : int
+    xyz : (N, 3) float ndarray
+    use : (C, N) bool ndarray, optional
+        The cameras whose depth map measures each point (default: every camera whose image it
+        projects into).
+    projection : Projection, optional
+        ``rig.project(xyz)`` when the caller has it.
+
+    Returns
+    -------
+    (N,) float64 ndarray
+        Metres: the smallest :func:`surface_distance` over the point's cameras (each is an
+        upper bound of the distance to the whole surface); NaN where none has surface near it.
+    """
+    from ..synth.groundtruth import load_depth_map
+
+    xyz = np.asarray(xyz, np.float64)
+    proj = rig.project(xyz) if projection is None else projection
+    use = proj.in_image if use is None else use
+    err = np.full(len(xyz), np.inf)
+    for c, cam in enumerate(rig):
+        if use[c].any():
+            dm = load_depth_map(capture, cam.name, frame)
+            e = surface_distance(cam, dm, xyz[use[c]], proj.pixels[c][use[c]])
+            err[use[c]] = np.fmin(err[use[c]], e)
+    return np.where(np.isfinite(err), err, np.nan)
+
+
 def surface_errors(
     capture: str | os.PathLike,
     rig,
@@ -221,7 +265,6 @@ def surface_errors(
         Metres, for the point-frames of ``frames`` in frame order (NaN where no camera's depth
         map has surface near the point's projection).
     """
-    from ..synth.groundtruth import load_depth_map
     from ..trajectories import dequantize_visibility
 
     frames = range(trajectories.num_frames) if frames is None else frames
@@ -235,13 +278,7 @@ def surface_errors(
                 dequantize_visibility(trajectories.visibility[rows]).T > min_visibility
             )
             use |= proj.in_image & ~use.any(axis=0)[None]  # (C, N): no visible camera: all
-            err = np.full(len(rows), np.inf)
-            for c, cam in enumerate(rig):
-                if use[c].any():
-                    dm = load_depth_map(capture, cam.name, t)
-                    e = surface_distance(cam, dm, xyz[use[c]], proj.pixels[c][use[c]])
-                    err[use[c]] = np.fmin(err[use[c]], e)
-            out.append(np.where(np.isfinite(err), err, np.nan))
+            out.append(frame_surface_errors(capture, rig, t, xyz, use, projection=proj))
         if progress is not None:
             progress(1)
     return np.concatenate(out) if out else np.zeros(0)

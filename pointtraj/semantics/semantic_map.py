@@ -325,12 +325,7 @@ class SemanticMap:
         lengths = np.diff(self.sample_offsets)
         ok = lengths > lag
         if trajectories is not None:
-            mask = check_array("trajectories", trajectories, (None,), dtype=bool)
-            if mask.size <= (self.sample_tracks.max() if self.sample_tracks.size else -1):
-                raise ValidationError(
-                    f"trajectories: {mask.size} entries, the map samples trajectory "
-                    f"{int(self.sample_tracks.max())}"
-                )
+            mask = check_array("trajectories", trajectories, (self.num_trajectories,), dtype=bool)
             ok &= mask[self.sample_tracks]
         start = self.sample_offsets[:-1][ok]
         nc = normalized_correlation(self.samples[p][start], self.samples[p][start + lag])
