@@ -253,7 +253,10 @@ def epipolar_distances(
     pb = check_array("pixels_b", pixels_b, (pa.shape[0], 2))
     xa = _normalized(rig, cam_a, pa)  # (N, 2)
     xb = _normalized(rig, cam_b, pb)
-    return _epipolar_normalized(rig, cam_a, cam_b, xa, xb)
+    line_b, hb, scale_a, scale_b = _epipolar_terms(rig, cam_a, cam_b, xa, xb)
+    alg = np.abs(np.sum(line_b * hb, axis=1))  # (N,) |x_b^T E x_a|
+    with np.errstate(invalid="ignore"):  # 0 * inf at an epipole: NaN, as 0 / 0 was
+        return alg * np.fmax(scale_a, scale_b)
 
 
 def _essential(rig: CameraRig, cam_a: int, cam_b: int) -> np.ndarray:
@@ -264,20 +267,26 @@ def _essential(rig: CameraRig, cam_a: int, cam_b: int) -> np.ndarray:
     return tx @ R
 
 
-def _epipolar_normalized(
+def _epipolar_terms(
     rig: CameraRig, cam_a: int, cam_b: int, xa: np.ndarray, xb: np.ndarray
-) -> np.ndarray:
-    """:func:`epipolar_distances` of undistorted normalised coordinates ``(N, 2)``."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-keypoint terms of the symmetric epipolar distance (:func:`epipolar_distances`).
+
+    For keypoints ``xa`` (Na, 2) of a and ``xb`` (Nb, 2) of b (undistorted normalised), the
+    distance of a pair ``(i, j)`` is ``|line_b[i] . hb[j]| * max(scale_a[i], scale_b[j])``:
+    ``line_b`` (Na, 3) are a's epipolar lines in b, ``hb`` (Nb, 3) b's homogeneous
+    coordinates, ``scale_a`` (Na,) b's focal length over the norm of a's line (the distance in
+    b) and ``scale_b`` (Nb,) a's focal length over the norm of b's line in a (the distance in a).
+    """
     E = _essential(rig, cam_a, cam_b)
-    ha = np.concatenate([xa, np.ones((len(xa), 1))], axis=1)  # (N, 3)
-    hb = np.concatenate([xb, np.ones((len(xb), 1))], axis=1)
-    lb = ha @ E.T  # (N, 3) lines in image b
-    la = hb @ E  # (N, 3) lines in image a
-    alg = np.sum(hb * lb, axis=1)  # (N,)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        db = np.abs(alg) / np.hypot(lb[:, 0], lb[:, 1]) * rig.K[cam_b, 0, 0]
-        da = np.abs(alg) / np.hypot(la[:, 0], la[:, 1]) * rig.K[cam_a, 0, 0]
-    return np.fmax(da, db)
+    ha = np.concatenate([xa, np.ones((len(xa), 1))], axis=1)  # (Na, 3)
+    hb = np.concatenate([xb, np.ones((len(xb), 1))], axis=1)  # (Nb, 3)
+    line_b = ha @ E.T  # (Na, 3) lines in image b
+    line_a = hb @ E  # (Nb, 3) lines in image a
+    with np.errstate(divide="ignore"):
+        scale_a = rig.K[cam_b, 0, 0] / np.hypot(line_b[:, 0], line_b[:, 1])
+        scale_b = rig.K[cam_a, 0, 0] / np.hypot(line_a[:, 0], line_a[:, 1])
+    return line_b, hb, scale_a, scale_b
 
 
 def _normalized(rig: CameraRig, cam: int, pixels: np.ndarray) -> np.ndarray:
@@ -404,8 +413,8 @@ def _guided_matches(
     pass :func:`epipolar_distances`' test exactly (``max(d_a, d_b) <= epipolar_px``, computed
     from per-keypoint epipolar lines). Hamming distances are popcounts of 64-bit words; the
     nearest and second nearest per keypoint come from ``minimum.reduceat`` over its candidates
-    (no sort). With ``cfg.cross_check`` only mutual nearest
-    neighbours within the bands are kept.
+    (no sort). With ``cfg.cross_check`` only mutual nearest neighbours within the bands are
+    kept.
 
     Returns
     -------
@@ -430,15 +439,8 @@ def _guided_matches(
     # search window: the band's angular half-width seen from a (a pixel subtends about 1 / f)
     tol_a = cfg.epipolar_px / rig.K[cam_a, 0, 0] / np.maximum(sin_a, 1e-6)
     window = np.minimum(margin * tol_a, max_window)
-    # exact band test per candidate (as epipolar_distances), from per-keypoint lines
-    E = _essential(rig, cam_a, cam_b)
-    ha = np.concatenate([xa, np.ones((len(xa), 1))], axis=1)  # (Na, 3)
-    hb = np.concatenate([xb, np.ones((len(xb), 1))], axis=1)  # (Nb, 3)
-    line_b = ha @ E.T  # (Na, 3) epipolar line of each a keypoint in image b
-    line_a = hb @ E  # (Nb, 3) and of each b keypoint in image a
-    with np.errstate(divide="ignore"):
-        scale_a = rig.K[cam_b, 0, 0] / np.hypot(line_b[:, 0], line_b[:, 1])  # (Na,)
-        scale_b = rig.K[cam_a, 0, 0] / np.hypot(line_a[:, 0], line_a[:, 1])  # (Nb,)
+    # exact band test per candidate (epipolar_distances' terms, per keypoint)
+    line_b, hb, scale_a, scale_b = _epipolar_terms(rig, cam_a, cam_b, xa, xb)
     nb = phi_b.size
     order = np.argsort(phi_b)
     # wrap around ±π: the sorted angles with copies shifted by ∓2π on either side
