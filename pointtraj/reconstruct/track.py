@@ -41,6 +41,8 @@ __all__ = [
     "FrameRecord",
     "Tracker",
     "track_flow",
+    "axis_angles",
+    "expand_views",
     "select_edges",
     "covered_by",
     "sample_colors",
@@ -269,6 +271,61 @@ class FrameRecord:
 # -- building blocks --------------------------------------------------------------------------
 
 
+def _flow_fb(
+    img0: np.ndarray,
+    img1: np.ndarray,
+    p0: np.ndarray,
+    lk: dict,
+    fb_max_px: float,
+    guess: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lucas-Kanade flow ``img0`` -> ``img1`` and back, with the forward-backward check.
+
+    Parameters
+    ----------
+    img0, img1 : (H, W) uint8 ndarray
+    p0 : (K, 2) float ndarray
+        Positions in ``img0``.
+    lk : dict
+        ``calcOpticalFlowPyrLK`` keyword arguments (window, levels, criteria).
+    fb_max_px : float
+        Maximum forward-backward error.
+    guess : (K, 2) float ndarray, optional
+        Start of the forward flow in ``img1`` (the backward flow then starts at ``p0``);
+        default: both start where they come from.
+
+    Returns
+    -------
+    p1 : (K, 2) float32 ndarray
+        Positions in ``img1``.
+    good : (K,) bool ndarray
+        Converged both ways, back within ``fb_max_px`` and inside ``img1``.
+    """
+    import cv2
+
+    a = np.ascontiguousarray(p0, dtype=np.float32).reshape(-1, 1, 2)
+    fwd, back = None, None
+    if guess is not None:
+        lk = {**lk, "flags": cv2.OPTFLOW_USE_INITIAL_FLOW}
+        fwd = np.ascontiguousarray(guess, dtype=np.float32).reshape(-1, 1, 2)
+        back = a.copy()
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, a, fwd, **lk)
+    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, back, **lk)
+    p1 = p1.reshape(-1, 2)
+    fb = np.linalg.norm(p0b.reshape(-1, 2) - a.reshape(-1, 2), axis=1)
+    h, w = img1.shape[:2]
+    good = (
+        (st1.ravel() == 1)
+        & (st2.ravel() == 1)
+        & (fb <= fb_max_px)
+        & (p1[:, 0] >= -0.5)
+        & (p1[:, 0] < w - 0.5)
+        & (p1[:, 1] >= -0.5)
+        & (p1[:, 1] < h - 0.5)
+    )
+    return p1, good
+
+
 def track_flow(
     prev_grey: np.ndarray,
     grey: np.ndarray,
@@ -301,29 +358,20 @@ def track_flow(
 
     p = check_array("points", points, (None, 2))
     out = np.full(p.shape, np.nan, np.float32)
-    h, w = grey.shape[:2]
-    ok = np.all(np.isfinite(p), axis=1)
-    idx = np.flatnonzero(ok)
+    idx = np.flatnonzero(np.all(np.isfinite(p), axis=1))
     if idx.size == 0:
         return out
-    p0 = np.ascontiguousarray(p[idx], dtype=np.float32).reshape(-1, 1, 2)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
     lk = {"winSize": (window, window), "maxLevel": levels, "criteria": crit}
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev_grey, grey, p0, None, **lk)
-    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(grey, prev_grey, p1, None, **lk)
-    p1 = p1.reshape(-1, 2)
-    fb = np.linalg.norm(p0b.reshape(-1, 2) - p0.reshape(-1, 2), axis=1)  # (K',)
-    good = (
-        (st1.ravel() == 1)
-        & (st2.ravel() == 1)
-        & (fb <= fb_max_px)
-        & (p1[:, 0] >= -0.5)
-        & (p1[:, 0] < w - 0.5)
-        & (p1[:, 1] >= -0.5)
-        & (p1[:, 1] < h - 0.5)
-    )
+    p1, good = _flow_fb(prev_grey, grey, p[idx], lk, fb_max_px)
     out[idx[good]] = p1[good]
     return out
+
+
+def axis_angles(rig: CameraRig) -> np.ndarray:
+    """(C, C) angles between the cameras' optical axes, degrees."""
+    axes = np.stack([cam.viewing_direction for cam in rig])  # (C, 3)
+    return np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))
 
 
 def expand_views(
@@ -384,16 +432,9 @@ def expand_views(
     if not cand.any():
         return out
     proj = rig.project(points) if projection is None else projection
-    axes = np.stack([cam.viewing_direction for cam in rig])  # (C, 3)
-    angle = np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))  # (C, C)
-    win = (window, window)
+    angle = axis_angles(rig)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
-    lk = {
-        "winSize": win,
-        "maxLevel": levels,
-        "criteria": crit,
-        "flags": cv2.OPTFLOW_USE_INITIAL_FLOW,
-    }
+    lk = {"winSize": (window, window), "maxLevel": levels, "criteria": crit}
     for c in np.flatnonzero(cand.any(axis=1)):
         n_c = np.flatnonzero(cand[c])
         # nearest observing camera (by optical axis) of each candidate point
@@ -401,24 +442,11 @@ def expand_views(
         ref = np.argmin(ang, axis=0)
         ok = ang[ref, np.arange(n_c.size)] <= max_angle_deg
         n_c, ref = n_c[ok], ref[ok]
-        h, w = grey[c].shape[:2]
         for r in np.unique(ref):
             n = n_c[ref == r]
-            p0 = np.ascontiguousarray(pix[r, n], dtype=np.float32).reshape(-1, 1, 2)
-            guess = np.ascontiguousarray(proj.pixels[c, n], dtype=np.float32).reshape(-1, 1, 2)
-            p1, st1, _ = cv2.calcOpticalFlowPyrLK(grey[r], grey[c], p0, guess.copy(), **lk)
-            back, st2, _ = cv2.calcOpticalFlowPyrLK(grey[c], grey[r], p1, p0.copy(), **lk)
-            p1, back, guess = p1.reshape(-1, 2), back.reshape(-1, 2), guess.reshape(-1, 2)
-            good = (
-                (st1.ravel() == 1)
-                & (st2.ravel() == 1)
-                & (np.linalg.norm(back - p0.reshape(-1, 2), axis=1) <= fb_max_px)
-                & (np.linalg.norm(p1 - guess, axis=1) <= max_px)
-                & (p1[:, 0] >= -0.5)
-                & (p1[:, 0] < w - 0.5)
-                & (p1[:, 1] >= -0.5)
-                & (p1[:, 1] < h - 0.5)
-            )
+            guess = proj.pixels[c, n]
+            p1, good = _flow_fb(grey[r], grey[c], pix[r, n], lk, fb_max_px, guess=guess)
+            good &= np.linalg.norm(p1 - guess, axis=1) <= max_px
             out[c, n[good]] = p1[good]
     logger.debug(
         "view expansion: %d of %d candidate views accepted",
@@ -578,6 +606,10 @@ class Tracker:
             edges = select_edges(rig, self.config.max_angle_deg, self.config.max_pairs_per_camera)
         self.edges = check_array("edges", edges, (None, 2), dtype=np.int64)
         self.state = state if state is not None else TrackState.empty(len(rig))
+        # view expansion can only find something where two cameras are close enough
+        near = axis_angles(rig) <= self.config.expand_max_angle_deg
+        np.fill_diagonal(near, False)
+        self._expand_views = self.config.expand_views and bool(near.any())
         self._prev_grey: list[np.ndarray] | None = None
         self._first_frame = first_frame
 
@@ -666,7 +698,7 @@ class Tracker:
         )  # (C, N, 2)
         n_old = int(keep_old.sum())
         old_ids = st.ids[keep_old]
-        if cfg.expand_views and len(xyz):
+        if self._expand_views and len(xyz):
             xyz, vis, err, pix = self._expand(grey, xyz, vis, err, pix)
         if cfg.occlusion_depth_m > 0 and len(xyz):
             from .triangulate import occlusion_test
@@ -744,6 +776,7 @@ class Tracker:
         tri = triangulate_ransac(self.rig, grown[:, more], self.tri_config)
         ok = self._alive(tri)
         idx = more[ok]
+        views_before = np.all(np.isfinite(pix), axis=2).sum()
         xyz, vis, err, pix = xyz.copy(), vis.copy(), err.copy(), pix.copy()
         xyz[idx] = tri.points[ok]
         vis[idx] = tri.visibility[ok]
@@ -753,7 +786,7 @@ class Tracker:
             "view expansion: %d points gained views (%.2f views per point, was %.2f)",
             idx.size,
             np.all(np.isfinite(pix), axis=2).sum() / max(len(xyz), 1),
-            np.all(np.isfinite(grown), axis=2).sum() / max(len(xyz), 1),
+            views_before / max(len(xyz), 1),
         )
         return xyz, vis, err, pix
 
