@@ -30,6 +30,7 @@ from ..atomic import atomic_path, save_npz_atomic
 from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError, check_array
 from ..trajectories import Trajectories, quantize_visibility
+from .densify import DensifyConfig
 from .matching import MatchingConfig, MultiViewTracks, match_frame, resolve_ambiguous
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -123,6 +124,9 @@ class ReconstructConfig:
         Seed of the RANSAC sampling.
     matching : MatchingConfig
         Feature detection and matching (table ``[reconstruct.matching]``).
+    densify : DensifyConfig
+        Patch densification around the frame's points, for wide baselines where features and
+        view expansion find little (table ``[reconstruct.densify]``; off by default).
     """
 
     sigma_px: float = 1.0
@@ -148,6 +152,7 @@ class ReconstructConfig:
     expand_px: float = 2.0
     seed: int = 0
     matching: MatchingConfig = field(default_factory=MatchingConfig)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
 
     def __post_init__(self) -> None:
         checks = {
@@ -183,6 +188,8 @@ class ReconstructConfig:
             )
         if not isinstance(self.matching, MatchingConfig):
             raise ValidationError("ReconstructConfig.matching must be a MatchingConfig")
+        if not isinstance(self.densify, DensifyConfig):
+            raise ValidationError("ReconstructConfig.densify must be a DensifyConfig")
 
     def triangulation(self) -> TriangulationConfig:
         """The matching :class:`TriangulationConfig`."""
@@ -690,6 +697,8 @@ class Tracker:
         parts = [(tri_old, obs, keep_old)]
         if new_tri is not None:
             parts.append((new_tri, new_obs, keep_new))
+            if cfg.densify.enabled:
+                parts.append(self._densify(grey, parts))
         xyz = np.concatenate([p[0].points[p[2]] for p in parts])  # (N, 3)
         vis = np.concatenate([p[0].visibility[p[2]] for p in parts])  # (N, C)
         err = np.concatenate([p[0].mean_error[p[2]] for p in parts])
@@ -789,6 +798,34 @@ class Tracker:
             views_before / max(len(xyz), 1),
         )
         return xyz, vis, err, pix
+
+    def _densify(
+        self, grey: list[np.ndarray], parts: list[tuple[Triangulation, np.ndarray, np.ndarray]]
+    ) -> tuple[Triangulation, np.ndarray, np.ndarray]:
+        """Patch densification (:func:`~.densify.densify`) around the frame's points so far."""
+        from .densify import densify, prepare_images
+        from .triangulate import triangulate_ransac
+
+        cfg = self.config
+        xyz = np.concatenate([p[0].points[p[2]] for p in parts])
+        pix = np.concatenate(
+            [np.where(p[0].inliers[..., None], p[1], np.nan)[:, p[2]] for p in parts], axis=1
+        )
+        dense = densify(self.rig, prepare_images(self.rig, grey), xyz, pix, pix, cfg.densify)
+        for c in range(len(self.rig)):  # keep the views that Lucas-Kanade can follow: a flow
+            # from the image to itself fails where its minimum-eigenvalue test will
+            dense[c] = track_flow(
+                grey[c],
+                grey[c],
+                dense[c],
+                window=cfg.lk_window,
+                levels=cfg.lk_levels,
+                fb_max_px=cfg.fb_max_px,
+            )
+        tri = triangulate_ransac(self.rig, dense, self.tri_config)
+        keep = self._alive(tri) & (np.count_nonzero(tri.inliers, axis=0) >= cfg.min_views_new)
+        logger.debug("densify: %d of %d new points kept", int(keep.sum()), dense.shape[1])
+        return tri, dense, keep
 
     def _alive(self, tri: Triangulation) -> np.ndarray:
         cfg = self.config

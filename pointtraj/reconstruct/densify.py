@@ -1,0 +1,511 @@
+"""Densification by patch plane sweep: grow new points around reconstructed ones.
+
+Feature matching leaves surfaces with little texture for ORB (skin, plain clothing) nearly
+empty on rigs whose cameras are far apart, and view expansion's flow between views needs close
+cameras. Densification works at any baseline because it uses the calibration instead of image
+similarity alone, in the manner of match propagation and patch-based multi-view stereo
+(Lhuillier & Quan 2002; Furukawa & Ponce 2010, "expansion"):
+
+1. In each reference camera r, the pixels of a regular grid (``step_px``) that lie within
+   ``radius_px`` of a reconstructed point's projection, and that no point observes yet, are
+   candidates. Each takes its nearest seed's depth ``z0`` in r and the seed's other cameras.
+2. Depth hypotheses ``z0 +- depth_range_m`` (``depth_steps`` of them) are swept along the
+   candidate's ray. A ``patch_size`` x ``patch_size`` patch, fronto-parallel in r, is warped into
+   each partner camera at each depth, and scored by normalised cross-correlation (NCC) with r's
+   patch.
+3. A candidate is kept when the mean NCC over its partners peaks at ``min_ncc`` or more, with
+   no rival peak within ``min_margin`` of it away from the best depth (repeated or flat texture),
+   and its patch is textured (grey-level standard deviation ``min_std`` or more). The depth is
+   refined by a parabola through the peak. It is observed in r and in every partner whose own
+   NCC at that depth reaches ``min_ncc``.
+   Two tests then remove wrong points. The patch's 3 x 3 centre must match as well
+   (``inner_ncc``): a patch across an occluding edge matches on the nearer surface's texture
+   while its centre lies on the farther one ("edge fattening" of window stereo). And the
+   other cameras that should see the point must not mostly disagree (``veto_ncc``).
+4. Accepted points seed the next of ``rounds`` rounds, so a frame's points spread outwards.
+
+The result is a set of multi-view observations that the tracker triangulates with RANSAC and
+follows by optical flow like matched points. Everything is vectorised per (reference, partner)
+camera pair and chunk of candidates.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import CameraRig
+from ..errors import ValidationError
+
+logger = logging.getLogger(__name__)
+
+_REMAP_ROWS = 32000  # cv2.remap's maps must have fewer than 2^15 rows
+
+
+@dataclass(frozen=True)
+class DensifyConfig:
+    """Parameters of patch densification (TOML table ``[reconstruct.densify]``).
+
+    Attributes
+    ----------
+    enabled : bool
+        Run densification whenever matching runs (off by default; on in the pipelines of rigs
+        with wide baselines).
+    step_px : float
+        Grid spacing of candidate pixels in each reference camera.
+    radius_px : float
+        Candidates lie within this many pixels of a seed's projection (how far one round grows).
+    depth_range_m : float
+        Depths from ``z0 - depth_range_m`` to ``z0 + depth_range_m`` around the seed's depth.
+    depth_steps : int
+        Depth hypotheses in that range (odd keeps ``z0`` itself).
+    patch_size : int
+        Samples per side of the square patch.
+    patch_spacing_px : float
+        Spacing of the patch's samples in the reference image.
+    min_ncc : float
+        Mean NCC a candidate needs at its best depth; also what a partner view needs to observe
+        the new point.
+    min_margin : float
+        The best mean NCC must exceed every score more than ``peak_width`` steps from the best
+        depth by this much.
+    peak_width : int
+        Depth steps on each side of the best one that belong to its peak.
+    min_std : float
+        Grey-level standard deviation (0-255) the reference patch needs.
+    veto_ncc : float
+        A new point is dropped when more of the other cameras within ``veto_angle_deg`` that it
+        projects into score below this NCC than cameras observe it (a wrong match floats in
+        free space and the other cameras see something else there); -1 turns the test off.
+    veto_angle_deg : float
+        See ``veto_ncc``.
+    inner_ncc : float
+        NCC that the 3 x 3 centre of the patch (spacing ``patch_spacing_px / 2``) needs in every
+        observing partner at the chosen depth. A patch across an occluding edge matches on the
+        nearer surface's texture while its centre lies on the farther surface ("edge
+        fattening"); -1 turns the test off.
+    max_angle_deg : float
+        Partner cameras' optical axes are at most this far from the reference camera's.
+    rounds : int
+        Growth rounds per frame; each grows from the previous round's points.
+    max_points : int
+        At most this many new points per frame (bounds the cost).
+    """
+
+    enabled: bool = False
+    step_px: float = 6.0
+    radius_px: float = 24.0
+    depth_range_m: float = 0.08
+    depth_steps: int = 33
+    patch_size: int = 7
+    patch_spacing_px: float = 2.0
+    min_ncc: float = 0.9
+    min_margin: float = 0.1
+    peak_width: int = 3
+    min_std: float = 4.0
+    veto_ncc: float = 0.3
+    inner_ncc: float = 0.7
+    veto_angle_deg: float = 120.0
+    max_angle_deg: float = 90.0
+    rounds: int = 2
+    max_points: int = 20000
+
+    def __post_init__(self) -> None:
+        checks = {
+            "step_px": self.step_px >= 1,
+            "radius_px": self.radius_px > 0,
+            "depth_range_m": self.depth_range_m > 0,
+            "depth_steps": self.depth_steps >= 3,
+            "patch_size": self.patch_size >= 3,
+            "patch_spacing_px": self.patch_spacing_px > 0,
+            "min_ncc": -1 <= self.min_ncc <= 1,
+            "min_margin": self.min_margin >= 0,
+            "peak_width": 1 <= self.peak_width < self.depth_steps // 2,
+            "min_std": self.min_std >= 0,
+            "veto_ncc": -1 <= self.veto_ncc <= 1,
+            "veto_angle_deg": 0 < self.veto_angle_deg <= 180,
+            "inner_ncc": -1 <= self.inner_ncc <= 1,
+            "max_angle_deg": 0 < self.max_angle_deg <= 180,
+            "rounds": self.rounds >= 1,
+            "max_points": self.max_points >= 1,
+        }
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise ValidationError(f"DensifyConfig.{bad[0]} out of range: {getattr(self, bad[0])!r}")
+
+
+def prepare_images(rig: CameraRig, grey: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Undistorted float32 grey images, lightly blurred so that sparse patch samples do not alias.
+
+    The sweep then maps patches between cameras by a plane homography, without lens
+    distortion in its inner loop. Each undistorted image keeps its camera's K.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    grey : list of C (H, W) uint8 ndarrays
+
+    Returns
+    -------
+    list of C (H, W) float32 ndarrays
+        NaN where an undistorted pixel falls outside the original image.
+    """
+    import cv2
+
+    if len(grey) != len(rig):
+        raise ValidationError(f"prepare_images: expected {len(rig)} images, got {len(grey)}")
+    out = []
+    for cam, g in zip(rig, grey, strict=True):
+        im = np.asarray(g, np.float32)
+        if cam.has_distortion:
+            mx, my = cv2.initUndistortRectifyMap(
+                cam.K, cam.dist, None, cam.K, cam.size, cv2.CV_32FC1
+            )
+            im = cv2.remap(
+                im, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+            )
+        out.append(cv2.GaussianBlur(im, (0, 0), 1.0))
+    return out
+
+
+def _sample(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``image`` at (u, v) of shape (..., P); NaN outside the image."""
+    import cv2
+
+    shape = u.shape
+    P = shape[-1]
+    mu = np.ascontiguousarray(u.reshape(-1, P), dtype=np.float32)
+    mv = np.ascontiguousarray(v.reshape(-1, P), dtype=np.float32)
+    out = np.empty(mu.shape, np.float32)
+    for a in range(0, mu.shape[0], _REMAP_ROWS):
+        b = a + _REMAP_ROWS
+        out[a:b] = cv2.remap(
+            image,
+            mu[a:b],
+            mv[a:b],
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=float("nan"),
+        )
+    return out.reshape(shape)
+
+
+def _zscore(patches: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Patches over the last axis, centred and scaled to unit RMS; and their std."""
+    mean = patches.mean(axis=-1, keepdims=True)
+    centred = patches - mean
+    std = np.sqrt(np.mean(centred**2, axis=-1, keepdims=True))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return centred / std, std[..., 0]
+
+
+def _axis_angles(rig: CameraRig) -> np.ndarray:
+    d = rig.R[:, 2, :]  # (C, 3) optical axes in world coordinates
+    return np.degrees(np.arccos(np.clip(d @ d.T, -1.0, 1.0)))
+
+
+def _grid(width: int, height: int, step: float, margin: float) -> np.ndarray:
+    us = np.arange(margin, width - margin, step)
+    vs = np.arange(margin, height - margin, step)
+    uu, vv = np.meshgrid(us, vs)
+    return np.stack([uu.ravel(), vv.ravel()], axis=1)  # (G, 2)
+
+
+def _ideal_pixels(rig: CameraRig, X: np.ndarray) -> np.ndarray:
+    """(C, N, 2) projections of world points without lens distortion (NaN behind a camera)."""
+    cam = (
+        np.matmul(X[None], rig.R.transpose(0, 2, 1))
+        - np.einsum("cij,cj->ci", rig.R, rig.C)[:, None]
+    )  # (C, N, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xy = cam[..., :2] / np.where(cam[..., 2:] > 0, cam[..., 2:], np.nan)
+    K = rig.K
+    u = K[:, None, 0, 0] * xy[..., 0] + K[:, None, 0, 1] * xy[..., 1] + K[:, None, 0, 2]
+    v = K[:, None, 1, 1] * xy[..., 1] + K[:, None, 1, 2]
+    return np.stack([u, v], axis=-1)
+
+
+def densify(
+    rig: CameraRig,
+    images: Sequence[np.ndarray],
+    seeds_xyz: np.ndarray,
+    seeds_pixels: np.ndarray,
+    taken_pixels: np.ndarray,
+    config: DensifyConfig | None = None,
+) -> np.ndarray:
+    """New multi-view observations around reconstructed points (see the module docstring).
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    images : list of C (H, W) float32 ndarrays
+        Undistorted grey images from :func:`prepare_images`.
+    seeds_xyz : (N, 3) float ndarray
+        Reconstructed points of this frame.
+    seeds_pixels : (C, N, 2) float ndarray
+        Their observations, distorted pixels (NaN in the cameras that do not observe them).
+    taken_pixels : (C, Q, 2) float ndarray
+        Every observation already made at this frame (distorted pixels, NaN where absent); no
+        candidate is placed within ``0.75 * step_px`` of one.
+    config : DensifyConfig, optional
+
+    Returns
+    -------
+    (C, M, 2) float ndarray
+        Observations (distorted pixels) of M new points, each in its reference camera and one
+        or more partners (NaN elsewhere).
+    """
+    from scipy.spatial import cKDTree
+
+    cfg = config or DensifyConfig()
+    C = len(rig)
+    if len(images) != C:
+        raise ValidationError(f"densify: expected {C} images, got {len(images)}")
+    seeds_xyz = np.asarray(seeds_xyz, np.float64).reshape(-1, 3)
+    ideal = _undistorted(rig, seeds_pixels)
+    taken = [t[np.all(np.isfinite(t), axis=1)] for t in _undistorted(rig, taken_pixels)]
+    angles = _axis_angles(rig)
+    np.fill_diagonal(angles, np.inf)
+    near = angles <= cfg.max_angle_deg
+    veto = angles <= cfg.veto_angle_deg
+    half = (cfg.patch_size - 1) / 2
+    off = (np.arange(cfg.patch_size) - half) * cfg.patch_spacing_px
+    offsets = np.stack(np.meshgrid(off, off), axis=-1).reshape(-1, 2)  # (P, 2)
+    margin = half * cfg.patch_spacing_px + 1
+    dz = np.linspace(-cfg.depth_range_m, cfg.depth_range_m, cfg.depth_steps)  # (D,)
+    found: list[np.ndarray] = []
+    total = 0
+    xyz, pix = seeds_xyz, ideal
+    for _ in range(cfg.rounds):
+        round_X, round_seen = [], []
+        for r in range(C):
+            if total >= cfg.max_points:
+                break
+            X, seen = _densify_camera(
+                rig, images, r, xyz, pix, taken, near[r], veto[r], offsets, margin, dz, cfg, cKDTree
+            )
+            X, seen = X[: cfg.max_points - total], seen[:, : cfg.max_points - total]
+            if len(X) == 0:
+                continue
+            total += len(X)
+            round_X.append(X)
+            round_seen.append(seen)
+            got = np.where(seen[..., None], _ideal_pixels(rig, X), np.nan)
+            for c in range(C):  # later cameras and rounds leave these pixels alone
+                taken[c] = np.concatenate([taken[c], got[c][seen[c]]])
+        if not round_X:
+            break
+        xyz = np.concatenate(round_X)
+        seen = np.concatenate(round_seen, axis=1)
+        pix = np.where(seen[..., None], _ideal_pixels(rig, xyz), np.nan)
+        found.append(np.where(seen[..., None], rig.project(xyz).pixels, np.nan))
+    out = np.concatenate(found, axis=1) if found else np.zeros((C, 0, 2))
+    logger.debug("densify: %d new points in %d rounds", out.shape[1], len(found))
+    return out
+
+
+def _undistorted(rig: CameraRig, pixels: np.ndarray) -> np.ndarray:
+    """Distorted (C, N, 2) pixels as an ideal camera with the same K sees them (NaN kept)."""
+    pix = np.asarray(pixels, np.float64).reshape(len(rig), -1, 2)
+    if pix.shape[1] == 0 or not any(cam.has_distortion for cam in rig):
+        return pix.copy()
+    ok = np.all(np.isfinite(pix), axis=2)
+    und = rig.undistort_pixels(np.where(ok[..., None], pix, 0.0))
+    return np.where(ok[..., None], und, np.nan)
+
+
+def _ncc(
+    image: np.ndarray,
+    other,
+    cam,
+    rays: np.ndarray,
+    z: np.ndarray,
+    ref: np.ndarray,
+) -> np.ndarray:
+    """NCC of reference patches with their warps into another camera, per depth hypothesis.
+
+    A patch sample on ray ``x`` of the reference camera at depth ``z`` projects into the other
+    camera's undistorted image at ``z * (K' R_rs x) + K' t_rs`` (homogeneous): a plane homography
+    per depth, applied to all samples at once.
+
+    Parameters
+    ----------
+    image : (H, W) float32 ndarray
+        The other camera's undistorted image (:func:`prepare_images`).
+    other, cam : Camera
+        The other camera and the reference camera.
+    rays : (n, P, 3) float ndarray
+        The patch samples' rays in the reference camera's frame (``z = 1``).
+    z : (n, D) float ndarray
+        Depth hypotheses along the reference camera's optical axis.
+    ref : (n, P) float ndarray
+        The reference patches from :func:`_zscore`.
+
+    Returns
+    -------
+    (n, D) float ndarray
+        NCC in [-1, 1]; -1 where the warped patch leaves the image or is flat.
+    """
+    n, D = z.shape
+    P = ref.shape[1]
+    R_rs = other.R @ cam.R.T
+    M = (other.K @ R_rs).astype(np.float32)
+    k = (other.K @ (other.R @ (cam.C - other.C))).astype(np.float32)
+    scores = np.full((n, D), -1.0)
+    rows = max(1, _REMAP_ROWS // D)
+    for a in range(0, n, rows):
+        B = rays[a : a + rows].astype(np.float32) @ M.T  # (m, P, 3)
+        zz = z[a : a + rows, :, None].astype(np.float32)  # (m, D, 1)
+        w = zz * B[:, None, :, 2] + k[2]  # (m, D, P)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            w = np.where(w > 1e-6, w, np.nan)
+            u = (zz * B[:, None, :, 0] + k[0]) / w
+            v = (zz * B[:, None, :, 1] + k[1]) / w
+        cmp, _ = _zscore(_sample(image, u, v))  # (m, D, P)
+        ncc = np.einsum("mdp,mp->md", cmp, ref[a : a + rows].astype(np.float32)) / P
+        scores[a : a + rows] = np.where(np.isfinite(ncc), ncc, -1.0)
+    return scores
+
+
+def _rays(cam, pixels: np.ndarray) -> np.ndarray:
+    """(..., 3) rays ``K^-1 (u, v, 1)`` of ideal pixels (..., 2), in the camera frame."""
+    K = cam.K
+    y = (pixels[..., 1] - K[1, 2]) / K[1, 1]
+    x = (pixels[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    return np.stack([x, y, np.ones_like(x)], axis=-1)
+
+
+def _densify_camera(
+    rig: CameraRig,
+    images: Sequence[np.ndarray],
+    r: int,
+    seeds_xyz: np.ndarray,
+    seeds_pixels: np.ndarray,
+    taken: list[np.ndarray],
+    partners_ok: np.ndarray,
+    veto_ok: np.ndarray,
+    offsets: np.ndarray,
+    margin: float,
+    dz: np.ndarray,
+    cfg: DensifyConfig,
+    kdtree,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One reference camera's accepted candidates.
+
+    ``seeds_pixels`` and ``taken`` are ideal (undistorted) pixels. Returns the new points
+    (M, 3) and the cameras observing them (C, M) bool.
+    """
+    C = len(rig)
+    empty = (np.zeros((0, 3)), np.zeros((C, 0), bool))
+    seen = np.all(np.isfinite(seeds_pixels[r]), axis=1) & np.all(np.isfinite(seeds_xyz), axis=1)
+    if not seen.any():
+        return empty
+    cam = rig[r]
+    q = seeds_pixels[r, seen]
+    z_seed = ((seeds_xyz[seen] - cam.C) @ cam.R.T)[:, 2]
+    partner_mask = np.all(np.isfinite(seeds_pixels[:, seen]), axis=2) & partners_ok[:, None]
+    grid = _grid(cam.width, cam.height, cfg.step_px, margin)
+    d, j = kdtree(q).query(grid, k=1, distance_upper_bound=cfg.radius_px)
+    keep = np.isfinite(d)
+    if len(taken[r]) and keep.any():
+        dt, _ = kdtree(taken[r]).query(grid[keep], k=1, distance_upper_bound=0.75 * cfg.step_px)
+        keep[np.flatnonzero(keep)[np.isfinite(dt)]] = False
+    cand, j = grid[keep], j[keep]
+    ok = partner_mask[:, j].any(axis=0) & (z_seed[j] > 0)
+    cand, j = cand[ok], j[ok]
+    if len(cand) == 0:
+        return empty
+
+    # reference patches; flat ones cannot be matched
+    n_cand = len(cand)
+    patch = cand[:, None, :] + offsets[None]  # (n, P, 2)
+    ref, ref_std = _zscore(_sample(images[r], patch[..., 0], patch[..., 1]))
+    ok = ref_std >= cfg.min_std
+    cand, j, ref, patch = cand[ok], j[ok], ref[ok], patch[ok]
+    n, P = ref.shape
+    if n == 0:
+        return empty
+    rays = _rays(cam, patch)  # (n, P, 3)
+    z = z_seed[j][:, None] + dz[None, :]  # (n, D)
+    D = len(dz)
+
+    score_sum = np.zeros((n, D))
+    count = np.zeros(n)
+    per_partner: list[tuple[int, np.ndarray, np.ndarray]] = []
+    for s in np.flatnonzero(partners_ok):
+        sel = np.flatnonzero(partner_mask[s, j])
+        if sel.size == 0:
+            continue
+        scores = _ncc(images[s], rig[s], cam, rays[sel], z[sel], ref[sel])
+        score_sum[sel] += scores
+        count[sel] += 1
+        per_partner.append((int(s), sel, scores))
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = score_sum / count[:, None]
+    best = np.argmax(mean, axis=1)
+    top = mean[np.arange(n), best]
+    far = np.abs(np.arange(D)[None, :] - best[:, None]) > cfg.peak_width
+    rival = np.where(far, mean, -np.inf).max(axis=1)
+    interior = (best > 0) & (best < D - 1)
+    accept = (count > 0) & interior & (top >= cfg.min_ncc) & (top - rival >= cfg.min_margin)
+    if not accept.any():
+        return empty
+    # parabola through the peak and its neighbours
+    b = np.clip(best, 1, D - 2)
+    y0, y1, y2 = (mean[np.arange(n), b + k] for k in (-1, 0, 1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        delta = np.clip(0.5 * (y0 - y2) / (y0 - 2 * y1 + y2), -0.5, 0.5)
+    delta = np.where(np.isfinite(delta), delta, 0.0)
+    z_best = z[np.arange(n), b] + delta * (dz[1] - dz[0])
+    X = cam.C + (z_best[:, None] * _rays(cam, cand)) @ cam.R  # (n, 3) world
+    proj = rig.project(X)
+    views = np.zeros((C, n), bool)
+    views[r] = proj.in_image[r]
+    for s, sel, scores in per_partner:
+        good = (scores[np.arange(sel.size), best[sel]] >= cfg.min_ncc) & proj.in_image[s, sel]
+        views[s, sel[good]] = True
+    accept &= views[r] & (views.sum(axis=0) >= 2)
+    if cfg.inner_ncc > -1 and accept.any():
+        # the centre of the patch must match too: a patch across an occluding edge matches on
+        # the nearer surface's texture while its centre lies on the farther one
+        k = np.arange(-1, 2) * max(cfg.patch_spacing_px / 2, 1.0)
+        inner = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2)
+        idx = np.flatnonzero(accept)
+        ipatch = cand[idx, None, :] + inner[None]
+        iref, _ = _zscore(_sample(images[r], ipatch[..., 0], ipatch[..., 1]))
+        irays = _rays(cam, ipatch)
+        worst = np.full(idx.size, np.inf)
+        for s in np.flatnonzero(partners_ok):
+            sub = np.flatnonzero(views[s, idx])
+            if sub.size == 0:
+                continue
+            ncc = _ncc(images[s], rig[s], cam, irays[sub], z_best[idx[sub], None], iref[sub])
+            worst[sub] = np.minimum(worst[sub], ncc[:, 0])
+        accept[idx[worst < cfg.inner_ncc]] = False
+    if cfg.veto_ncc > -1 and accept.any():
+        # the other cameras that should see the point: a wrong match floats in free space, so
+        # most of them see something else there (an occluded view disagrees too, so only a
+        # majority of disagreeing views rejects)
+        disagree = np.zeros(n, np.int64)
+        for s in np.flatnonzero(veto_ok):
+            sel = np.flatnonzero(accept & proj.in_image[s] & ~views[s])
+            if sel.size == 0:
+                continue
+            ncc = _ncc(images[s], rig[s], cam, rays[sel], z_best[sel, None], ref[sel])[:, 0]
+            disagree[sel] += ncc < cfg.veto_ncc
+        accept &= disagree < views.sum(axis=0)
+    logger.debug(
+        "densify camera %d: %d candidates, %d textured, %d peaked, %d accepted",
+        r,
+        n_cand,
+        n,
+        int((top >= cfg.min_ncc).sum()),
+        int(accept.sum()),
+    )
+    return X[accept], views[:, accept]
