@@ -39,6 +39,7 @@ SETTINGS = {
     "min_ncc 0.8, no centre test": {"min_ncc": 0.8, "inner_ncc": -1.0},
     "min_ncc 0.85": {"min_ncc": 0.85},
     "4 rounds": {"rounds": 4},
+    "grid step 4 px": {"step_px": 4.0},
 }
 
 

@@ -31,6 +31,7 @@ camera pair and chunk of candidates.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -203,30 +204,11 @@ def _zscore(patches: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return centred / std, std[..., 0]
 
 
-def _axis_angles(rig: CameraRig) -> np.ndarray:
-    d = rig.R[:, 2, :]  # (C, 3) optical axes in world coordinates
-    return np.degrees(np.arccos(np.clip(d @ d.T, -1.0, 1.0)))
-
-
 def _grid(width: int, height: int, step: float, margin: float) -> np.ndarray:
     us = np.arange(margin, width - margin, step)
     vs = np.arange(margin, height - margin, step)
     uu, vv = np.meshgrid(us, vs)
     return np.stack([uu.ravel(), vv.ravel()], axis=1)  # (G, 2)
-
-
-def _ideal_pixels(rig: CameraRig, X: np.ndarray) -> np.ndarray:
-    """(C, N, 2) projections of world points without lens distortion (NaN behind a camera)."""
-    cam = (
-        np.matmul(X[None], rig.R.transpose(0, 2, 1))
-        - np.einsum("cij,cj->ci", rig.R, rig.C)[:, None]
-    )  # (C, N, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        xy = cam[..., :2] / np.where(cam[..., 2:] > 0, cam[..., 2:], np.nan)
-    K = rig.K
-    u = K[:, None, 0, 0] * xy[..., 0] + K[:, None, 0, 1] * xy[..., 1] + K[:, None, 0, 2]
-    v = K[:, None, 1, 1] * xy[..., 1] + K[:, None, 1, 2]
-    return np.stack([u, v], axis=-1)
 
 
 def densify(
@@ -262,14 +244,17 @@ def densify(
     """
     from scipy.spatial import cKDTree
 
+    from .track import axis_angles
+
     cfg = config or DensifyConfig()
     C = len(rig)
     if len(images) != C:
         raise ValidationError(f"densify: expected {C} images, got {len(images)}")
     seeds_xyz = np.asarray(seeds_xyz, np.float64).reshape(-1, 3)
+    ideal_rig = CameraRig([dataclasses.replace(cam, dist=np.zeros(8)) for cam in rig])
     ideal = _undistorted(rig, seeds_pixels)
     taken = [t[np.all(np.isfinite(t), axis=1)] for t in _undistorted(rig, taken_pixels)]
-    angles = _axis_angles(rig)
+    angles = axis_angles(rig)
     np.fill_diagonal(angles, np.inf)
     near = angles <= cfg.max_angle_deg
     veto = angles <= cfg.veto_angle_deg
@@ -295,14 +280,14 @@ def densify(
             total += len(X)
             round_X.append(X)
             round_seen.append(seen)
-            got = np.where(seen[..., None], _ideal_pixels(rig, X), np.nan)
+            got = np.where(seen[..., None], ideal_rig.project(X).pixels, np.nan)
             for c in range(C):  # later cameras and rounds leave these pixels alone
                 taken[c] = np.concatenate([taken[c], got[c][seen[c]]])
         if not round_X:
             break
         xyz = np.concatenate(round_X)
         seen = np.concatenate(round_seen, axis=1)
-        pix = np.where(seen[..., None], _ideal_pixels(rig, xyz), np.nan)
+        pix = np.where(seen[..., None], ideal_rig.project(xyz).pixels, np.nan)
         found.append(np.where(seen[..., None], rig.project(xyz).pixels, np.nan))
     out = np.concatenate(found, axis=1) if found else np.zeros((C, 0, 2))
     logger.debug("densify: %d new points in %d rounds", out.shape[1], len(found))
