@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import CameraRig
-from ..errors import ValidationError
+from ..errors import ValidationError, check_array
 
 logger = logging.getLogger(__name__)
 
@@ -250,7 +250,9 @@ def densify(
     C = len(rig)
     if len(images) != C:
         raise ValidationError(f"densify: expected {C} images, got {len(images)}")
-    seeds_xyz = np.asarray(seeds_xyz, np.float64).reshape(-1, 3)
+    seeds_xyz = check_array("seeds_xyz", seeds_xyz, (None, 3))
+    seeds_pixels = check_array("seeds_pixels", seeds_pixels, (C, len(seeds_xyz), 2))
+    taken_pixels = check_array("taken_pixels", taken_pixels, (C, None, 2))
     ideal_rig = CameraRig([dataclasses.replace(cam, dist=np.zeros(8)) for cam in rig])
     ideal = _undistorted(rig, seeds_pixels)
     taken = [t[np.all(np.isfinite(t), axis=1)] for t in _undistorted(rig, taken_pixels)]

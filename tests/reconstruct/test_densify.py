@@ -122,6 +122,8 @@ def test_densify_rejects_flat_images_and_wrong_depth_priors(wide_plane):
     assert none.shape == (3, 0, 2)
     with pytest.raises(ValidationError, match="expected 3 images"):
         densify(rig, grey[:2], X, pix, pix)
+    with pytest.raises(ValidationError, match="seeds_pixels"):
+        densify(rig, grey, X, pix[:, :5], pix)
 
 
 def test_densify_config_from_toml_and_validation():
