@@ -40,6 +40,7 @@ SETTINGS = {
     "min_ncc 0.85": {"min_ncc": 0.85},
     "4 rounds": {"rounds": 4},
     "grid step 4 px": {"step_px": 4.0},
+    "every partner (max_partners = 0)": {"max_partners": 0},
 }
 
 

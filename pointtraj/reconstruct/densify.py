@@ -92,6 +92,10 @@ class DensifyConfig:
         Partner cameras' optical axes are at most this far from the reference camera's.
     rounds : int
         Growth rounds per frame; each grows from the previous round's points.
+    max_partners : int
+        A candidate is swept in at most this many of its seed's cameras, those whose optical
+        axes are nearest the reference camera's, and vetoed by at most this many other cameras
+        (0: all). Bounds the cost on dense rigs.
     max_points : int
         At most this many new points per frame (bounds the cost).
     """
@@ -112,6 +116,7 @@ class DensifyConfig:
     veto_angle_deg: float = 120.0
     max_angle_deg: float = 90.0
     rounds: int = 2
+    max_partners: int = 3
     max_points: int = 20000
 
     def __post_init__(self) -> None:
@@ -131,6 +136,7 @@ class DensifyConfig:
             "inner_ncc": -1 <= self.inner_ncc <= 1,
             "max_angle_deg": 0 < self.max_angle_deg <= 180,
             "rounds": self.rounds >= 1,
+            "max_partners": self.max_partners >= 0,
             "max_points": self.max_points >= 1,
         }
         bad = [k for k, ok in checks.items() if not ok]
@@ -258,8 +264,6 @@ def densify(
     taken = [t[np.all(np.isfinite(t), axis=1)] for t in _undistorted(rig, taken_pixels)]
     angles = axis_angles(rig)
     np.fill_diagonal(angles, np.inf)
-    near = angles <= cfg.max_angle_deg
-    veto = angles <= cfg.veto_angle_deg
     half = (cfg.patch_size - 1) / 2
     off = (np.arange(cfg.patch_size) - half) * cfg.patch_spacing_px
     offsets = np.stack(np.meshgrid(off, off), axis=-1).reshape(-1, 2)  # (P, 2)
@@ -274,7 +278,7 @@ def densify(
             if total >= cfg.max_points:
                 break
             X, seen = _densify_camera(
-                rig, images, r, xyz, pix, taken, near[r], veto[r], offsets, margin, dz, cfg, cKDTree
+                rig, images, r, xyz, pix, taken, angles[r], offsets, margin, dz, cfg, cKDTree
             )
             X, seen = X[: cfg.max_points - total], seen[:, : cfg.max_points - total]
             if len(X) == 0:
@@ -367,6 +371,15 @@ def _rays(cam, pixels: np.ndarray) -> np.ndarray:
     return np.stack([x, y, np.ones_like(x)], axis=-1)
 
 
+def _nearest(mask: np.ndarray, angles: np.ndarray, k: int) -> np.ndarray:
+    """Keep, per column of a (C, n) camera mask, the ``k`` cameras nearest in ``angles`` (C,)."""
+    if k <= 0 or mask.shape[1] == 0 or int(mask.sum(axis=0).max()) <= k:
+        return mask
+    key = np.where(mask, angles[:, None], np.inf)
+    rank = np.argsort(np.argsort(key, axis=0, kind="stable"), axis=0, kind="stable")
+    return mask & (rank < k)
+
+
 def _densify_camera(
     rig: CameraRig,
     images: Sequence[np.ndarray],
@@ -374,8 +387,7 @@ def _densify_camera(
     seeds_xyz: np.ndarray,
     seeds_pixels: np.ndarray,
     taken: list[np.ndarray],
-    partners_ok: np.ndarray,
-    veto_ok: np.ndarray,
+    angles: np.ndarray,
     offsets: np.ndarray,
     margin: float,
     dz: np.ndarray,
@@ -395,7 +407,12 @@ def _densify_camera(
     cam = rig[r]
     q = seeds_pixels[r, seen]
     z_seed = ((seeds_xyz[seen] - cam.C) @ cam.R.T)[:, 2]
-    partner_mask = np.all(np.isfinite(seeds_pixels[:, seen]), axis=2) & partners_ok[:, None]
+    partners_ok = angles <= cfg.max_angle_deg  # (C,)
+    partner_mask = _nearest(
+        np.all(np.isfinite(seeds_pixels[:, seen]), axis=2) & partners_ok[:, None],
+        angles,
+        cfg.max_partners,
+    )  # (C, S): each seed's observing cameras nearest to r
     grid = _grid(cam.width, cam.height, cfg.step_px, margin)
     d, j = kdtree(q).query(grid, k=1, distance_upper_bound=cfg.radius_px)
     keep = np.isfinite(d)
@@ -480,8 +497,13 @@ def _densify_camera(
         # most of them see something else there (an occluded view disagrees too, so only a
         # majority of disagreeing views rejects)
         disagree = np.zeros(n, np.int64)
-        for s in np.flatnonzero(veto_ok):
-            sel = np.flatnonzero(accept & proj.in_image[s] & ~views[s])
+        asked = _nearest(
+            (angles <= cfg.veto_angle_deg)[:, None] & proj.in_image & ~views & accept[None],
+            angles,
+            cfg.max_partners,
+        )  # (C, n)
+        for s in np.flatnonzero(asked.any(axis=1)):
+            sel = np.flatnonzero(asked[s])
             if sel.size == 0:
                 continue
             ncc = _ncc(images[s], rig[s], cam, rays[sel], z_best[sel, None], ref[sel])[:, 0]

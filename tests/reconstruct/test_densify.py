@@ -156,3 +156,17 @@ def test_tracker_with_densify_reconstructs_more_of_a_wide_baseline_plane(wide_pl
         z_err[on] = np.abs(recs[-1].xyz[:, 2] - 2 * velocity[2])
     assert counts[True] > 3 * counts[False] > 0
     assert np.median(z_err[True]) < 0.003 and np.percentile(z_err[True], 95) < 0.02
+
+
+def test_partners_are_the_cameras_nearest_the_reference():
+    from pointtraj.reconstruct.densify import _nearest
+
+    angles = np.array([np.inf, 30.0, 80.0, 10.0, 50.0])  # camera 0 is the reference
+    mask = np.array([[0, 0, 0], [1, 1, 0], [1, 0, 0], [1, 1, 1], [1, 1, 0]], bool)  # (C, n)
+    got = _nearest(mask, angles, 2)
+    np.testing.assert_array_equal(got[:, 0], [0, 1, 0, 1, 0])  # 10 and 30 degrees of 4
+    np.testing.assert_array_equal(got[:, 1], [0, 1, 0, 1, 0])
+    np.testing.assert_array_equal(got[:, 2], [0, 0, 0, 1, 0])  # only one to choose from
+    np.testing.assert_array_equal(_nearest(mask, angles, 0), mask)  # 0: all
+    with pytest.raises(ValidationError, match="max_partners"):
+        DensifyConfig(max_partners=-1)
