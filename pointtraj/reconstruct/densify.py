@@ -248,8 +248,6 @@ def densify(
         Observations (distorted pixels) of M new points, each in its reference camera and one
         or more partners (NaN elsewhere).
     """
-    from scipy.spatial import cKDTree
-
     from .track import axis_angles
 
     cfg = config or DensifyConfig()
@@ -260,8 +258,8 @@ def densify(
     seeds_pixels = check_array("seeds_pixels", seeds_pixels, (C, len(seeds_xyz), 2))
     taken_pixels = check_array("taken_pixels", taken_pixels, (C, None, 2))
     ideal_rig = CameraRig([dataclasses.replace(cam, dist=np.zeros(8)) for cam in rig])
-    ideal = _undistorted(rig, seeds_pixels)
-    taken = [t[np.all(np.isfinite(t), axis=1)] for t in _undistorted(rig, taken_pixels)]
+    ideal = rig.undistort_pixels(seeds_pixels)  # NaN stays NaN
+    taken = [t[np.all(np.isfinite(t), axis=1)] for t in rig.undistort_pixels(taken_pixels)]
     angles = axis_angles(rig)
     np.fill_diagonal(angles, np.inf)
     half = (cfg.patch_size - 1) / 2
@@ -273,41 +271,32 @@ def densify(
     total = 0
     xyz, pix = seeds_xyz, ideal
     for _ in range(cfg.rounds):
-        round_X, round_seen = [], []
+        round_X, round_seen, round_pix = [], [], []
         for r in range(C):
             if total >= cfg.max_points:
                 break
             X, seen = _densify_camera(
-                rig, images, r, xyz, pix, taken, angles[r], offsets, margin, dz, cfg, cKDTree
+                rig, images, r, xyz, pix, taken, angles[r], offsets, margin, dz, cfg
             )
             X, seen = X[: cfg.max_points - total], seen[:, : cfg.max_points - total]
             if len(X) == 0:
                 continue
             total += len(X)
+            got = np.where(seen[..., None], ideal_rig.project(X).pixels, np.nan)
             round_X.append(X)
             round_seen.append(seen)
-            got = np.where(seen[..., None], ideal_rig.project(X).pixels, np.nan)
+            round_pix.append(got)
             for c in range(C):  # later cameras and rounds leave these pixels alone
                 taken[c] = np.concatenate([taken[c], got[c][seen[c]]])
         if not round_X:
             break
         xyz = np.concatenate(round_X)
         seen = np.concatenate(round_seen, axis=1)
-        pix = np.where(seen[..., None], ideal_rig.project(xyz).pixels, np.nan)
+        pix = np.concatenate(round_pix, axis=1)  # the next round's seeds, ideal pixels
         found.append(np.where(seen[..., None], rig.project(xyz).pixels, np.nan))
     out = np.concatenate(found, axis=1) if found else np.zeros((C, 0, 2))
     logger.debug("densify: %d new points in %d rounds", out.shape[1], len(found))
     return out
-
-
-def _undistorted(rig: CameraRig, pixels: np.ndarray) -> np.ndarray:
-    """Distorted (C, N, 2) pixels as an ideal camera with the same K sees them (NaN kept)."""
-    pix = np.asarray(pixels, np.float64).reshape(len(rig), -1, 2)
-    if pix.shape[1] == 0 or not any(cam.has_distortion for cam in rig):
-        return pix.copy()
-    ok = np.all(np.isfinite(pix), axis=2)
-    und = rig.undistort_pixels(np.where(ok[..., None], pix, 0.0))
-    return np.where(ok[..., None], und, np.nan)
 
 
 def _ncc(
@@ -392,13 +381,14 @@ def _densify_camera(
     margin: float,
     dz: np.ndarray,
     cfg: DensifyConfig,
-    kdtree,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One reference camera's accepted candidates.
 
     ``seeds_pixels`` and ``taken`` are ideal (undistorted) pixels. Returns the new points
     (M, 3) and the cameras observing them (C, M) bool.
     """
+    from scipy.spatial import cKDTree
+
     C = len(rig)
     empty = (np.zeros((0, 3)), np.zeros((C, 0), bool))
     seen = np.all(np.isfinite(seeds_pixels[r]), axis=1) & np.all(np.isfinite(seeds_xyz), axis=1)
@@ -414,10 +404,10 @@ def _densify_camera(
         cfg.max_partners,
     )  # (C, S): each seed's observing cameras nearest to r
     grid = _grid(cam.width, cam.height, cfg.step_px, margin)
-    d, j = kdtree(q).query(grid, k=1, distance_upper_bound=cfg.radius_px)
+    d, j = cKDTree(q).query(grid, k=1, distance_upper_bound=cfg.radius_px)
     keep = np.isfinite(d)
     if len(taken[r]) and keep.any():
-        dt, _ = kdtree(taken[r]).query(grid[keep], k=1, distance_upper_bound=0.75 * cfg.step_px)
+        dt, _ = cKDTree(taken[r]).query(grid[keep], k=1, distance_upper_bound=0.75 * cfg.step_px)
         keep[np.flatnonzero(keep)[np.isfinite(dt)]] = False
     cand, j = grid[keep], j[keep]
     ok = partner_mask[:, j].any(axis=0) & (z_seed[j] > 0)

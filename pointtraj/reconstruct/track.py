@@ -699,12 +699,7 @@ class Tracker:
             parts.append((new_tri, new_obs, keep_new))
             if cfg.densify.enabled:
                 parts.append(self._densify(grey, parts))
-        xyz = np.concatenate([p[0].points[p[2]] for p in parts])  # (N, 3)
-        vis = np.concatenate([p[0].visibility[p[2]] for p in parts])  # (N, C)
-        err = np.concatenate([p[0].mean_error[p[2]] for p in parts])
-        pix = np.concatenate(
-            [np.where(p[0].inliers[..., None], p[1], np.nan)[:, p[2]] for p in parts], axis=1
-        )  # (C, N, 2)
+        xyz, vis, err, pix = _union(parts)
         n_old = int(keep_old.sum())
         old_ids = st.ids[keep_old]
         if self._expand_views and len(xyz):
@@ -807,10 +802,7 @@ class Tracker:
         from .triangulate import triangulate_ransac
 
         cfg = self.config
-        xyz = np.concatenate([p[0].points[p[2]] for p in parts])
-        pix = np.concatenate(
-            [np.where(p[0].inliers[..., None], p[1], np.nan)[:, p[2]] for p in parts], axis=1
-        )
+        xyz, _, _, pix = _union(parts)
         dense = densify(self.rig, prepare_images(self.rig, grey), xyz, pix, pix, cfg.densify)
         for c in range(len(self.rig)):  # keep the views that Lucas-Kanade can follow: a flow
             # from the image to itself fails where its minimum-eigenvalue test will
@@ -857,6 +849,34 @@ class Tracker:
                 fields[name] = whole
             tri = Triangulation(**fields)
         return tri, obs
+
+
+def _union(
+    parts: list[tuple[Triangulation, np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The kept points of several triangulations, in order.
+
+    Parameters
+    ----------
+    parts : list of (Triangulation, (C, n, 2) observations, (n,) bool keep)
+
+    Returns
+    -------
+    xyz : (N, 3) float ndarray
+    visibility : (N, C) float ndarray
+    error : (N,) float ndarray
+        Mean inlier reprojection error.
+    pixels : (C, N, 2) float ndarray
+        The inlier observations (NaN elsewhere).
+    """
+    xyz = np.concatenate([tri.points[keep] for tri, _, keep in parts])
+    vis = np.concatenate([tri.visibility[keep] for tri, _, keep in parts])
+    err = np.concatenate([tri.mean_error[keep] for tri, _, keep in parts])
+    pix = np.concatenate(
+        [np.where(tri.inliers[..., None], obs, np.nan)[:, keep] for tri, obs, keep in parts],
+        axis=1,
+    )
+    return xyz, vis, err, pix
 
 
 def _empty_live(C: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
