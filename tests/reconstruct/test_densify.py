@@ -126,6 +126,33 @@ def test_densify_rejects_flat_images_and_wrong_depth_priors(wide_plane):
         densify(rig, grey, X, pix[:, :5], pix)
 
 
+def test_prepared_images_stay_within_their_budget(wide_plane):
+    """A tight budget re-prepares images instead of keeping them all, with the same points."""
+    import cv2
+
+    rig, images = wide_plane
+    grey = [im[..., 0] for im in images]
+    X, pix = seeds(rig)
+    cfg = DensifyConfig(rounds=2)
+    full = prepare_images(rig, grey)
+    tight = prepare_images(rig, grey, budget_mb=0.0)  # keeps one image at a time
+    a = densify(rig, full, X, pix, pix, cfg)
+    b = densify(rig, tight, X, pix, pix, cfg)
+    assert a.shape[1] > 400
+    np.testing.assert_array_equal(a, b)
+    assert full.prepared == 3 and full.nbytes == 3 * grey[0].size * 4  # each once, all kept
+    assert tight.prepared > 3 and tight.nbytes == grey[0].size * 4
+    # an undistorted rig's prepared image is the blurred grey image
+    blurred = cv2.GaussianBlur(grey[1].astype(np.float32), (0, 0), 1.0)
+    np.testing.assert_array_equal(full[1], blurred)
+    np.testing.assert_array_equal(full[-2], blurred)
+    assert len(full[:2]) == 2
+    with pytest.raises(IndexError):
+        full[3]
+    with pytest.raises(ValidationError, match="camera 'c1' is 480x360"):
+        prepare_images(rig, [grey[0], grey[1][:10], grey[2]])
+
+
 def test_densify_config_from_toml_and_validation():
     cfg = from_mapping(ReconstructConfig, {"densify": {"enabled": True, "rounds": 3}})
     assert cfg.densify.enabled and cfg.densify.rounds == 3
