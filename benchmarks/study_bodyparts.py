@@ -18,7 +18,10 @@ with a skeleton) we find the part whose segments lie nearest in 3D and report:
 - **on the body**: the fraction within ``--radius`` (25 cm) of any part's segments (the
   segments are the skeleton's axes and the surface lies 5-15 cm from them, plus the landmark
   noise; farther points are background or mismatched points that got a body label);
-- the same per trajectory (majority of its frames), and a confusion by part.
+- the same per trajectory (majority of its frames), and a confusion by part;
+- **motion**: the median speed of the trajectories (5 frames or longer) of the labelled
+  point-frames on and off the body. Points of the room are static; wrong points that move
+  with the person are mismatches on the person.
 
 The landmarks themselves are noisy (a median reprojection error of about 18 px on the Pose2Sim
 demo, ``docs/real_captures.md``, i.e. 2-4 cm at 3 m), so neighbouring parts (upper arm and
@@ -149,6 +152,26 @@ def main() -> None:
         "trajectories_majority_agree": float(np.mean(agree_tr > 0.5)),
         "by_part": {},
     }
+    for key, mask in (("on_body", on), ("off_body", ~on)):
+        ids = np.unique(track[mask])
+        ids = ids[traj.lengths[ids] >= 5]
+        speed = np.array(
+            [
+                np.median(
+                    np.linalg.norm(np.diff(traj.xyz[traj.rows_of(np.array([i]))], axis=0), axis=1)
+                )
+                for i in ids
+            ]
+        ) * float(traj.fps)
+        res[f"speed_{key}"] = {
+            "trajectories": int(len(ids)),
+            "median_speed_percentiles_10_50_90_m_per_s": np.percentile(speed, [10, 50, 90])
+            .round(3)
+            .tolist()
+            if len(ids)
+            else [],
+            "static_below_2cm_per_s": float(np.mean(speed < 0.02)) if len(ids) else float("nan"),
+        }
     for k, n in enumerate(names):
         sel = on & (lab == k)
         if sel.any():
