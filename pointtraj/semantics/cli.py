@@ -143,6 +143,13 @@ def gt_trajectories(capture: Path, work: Path, min_visible: int) -> None:
 )
 @click.option("--eps-e", type=float, default=None, help="Visibility threshold ε_e [default: 0.1].")
 @click.option(
+    "--background-vote",
+    type=float,
+    default=None,
+    help="Pool a point-frame as nothing when at least this fraction of its cameras see no class "
+    "there (silhouette consistency; 0.5 suits real recognisers on sparse rigs) [default: 0, off].",
+)
+@click.option(
     "--from-ground-truth",
     is_flag=True,
     help="If WORK has no trajectories.npz, create it from the capture's gt/ first.",
@@ -154,6 +161,7 @@ def semantics(
     options: tuple[str, ...],
     poolings: tuple[str, ...],
     eps_e: float | None,
+    background_vote: float | None,
     from_ground_truth: bool,
 ) -> None:
     """Build WORK/semantic_map.npz: recognise every image, view-pool, average over time."""
@@ -190,6 +198,7 @@ def semantics(
         config = SemanticsConfig(
             **({"poolings": tuple(poolings)} if poolings else {}),
             **({"eps_e": eps_e} if eps_e is not None else {}),
+            **({"background_vote": background_vote} if background_vote is not None else {}),
         )
         smap = build_semantic_map(cap, trajectories, recognizer, config=config, progress=True)
         out = work / "semantic_map.npz"

@@ -50,6 +50,11 @@ logger = logging.getLogger(__name__)
 FORMAT_VERSION = 1
 
 
+#: A camera "sees no class" at a point when every confidence there is below this
+#: (``SemanticsConfig.background_vote``).
+NOTHING_CONFIDENCE = 0.05
+
+
 @dataclass(frozen=True)
 class SemanticsConfig:
     """Parameters of the semantic map.
@@ -86,6 +91,12 @@ class SemanticsConfig:
         Depth tolerance of the occlusion test (m), with ``"geometric"``.
     occlusion_cell_px : float
         Z-buffer cell of the occlusion test (pixels), with ``"geometric"``.
+    background_vote : float
+        Silhouette consistency (0 turns it off). A point-frame is pooled as "nothing" (a
+        zero vector) when at least this fraction of its cameras (``V > eps_e``, inside the
+        image) see no class there (every confidence below :data:`NOTHING_CONFIDENCE`): a point
+        on a person projects onto the person in every camera that sees it, so a point that
+        half of its cameras see as background is background or misplaced in depth.
     """
 
     eps_e: float = 0.1
@@ -98,6 +109,7 @@ class SemanticsConfig:
     unobserved_visibility: float = 0.5
     occlusion_depth_m: float = 0.05
     occlusion_cell_px: float = 8.0
+    background_vote: float = 0.0
 
     def __post_init__(self) -> None:
         if self.visibility not in ("geometric", "observed"):
@@ -106,6 +118,8 @@ class SemanticsConfig:
             raise ValidationError(
                 f"unobserved_visibility: must be in (eps_e, 1], got {self.unobserved_visibility}"
             )
+        if not 0.0 <= self.background_vote <= 1.0:
+            raise ValidationError(f"background_vote: must be in [0, 1], got {self.background_vote}")
         if not (self.occlusion_depth_m > 0 and self.occlusion_cell_px > 0):
             raise ValidationError("occlusion_depth_m and occlusion_cell_px must be > 0")
         if not 0.0 <= self.eps_e < 1.0:
@@ -591,6 +605,7 @@ def build_semantic_map(
                     sample_offsets,
                     first_frame,
                     samples,
+                    config.background_vote,
                 )
             del maps
 
@@ -630,6 +645,7 @@ def _pool_chunk(
     sample_offsets: np.ndarray,
     first_frame: np.ndarray,
     samples: dict[str, np.ndarray],
+    background_vote: float = 0.0,
 ) -> None:
     """Sample, pool and accumulate one chunk of one frame's points."""
     n = len(track_id)
@@ -653,8 +669,16 @@ def _pool_chunk(
     sel = slot[track_id]  # (n,)
     has_sample = sel >= 0
     rows = sample_offsets[sel[has_sample]] + (t - first_frame[track_id[has_sample]])
+    nothing = None
+    if background_vote > 0:
+        cams = in_image & (V.T > eps)  # (C, n)
+        blank = cams & (L.max(axis=2) < NOTHING_CONFIDENCE)  # (C, n) sees no class there
+        n_cams = cams.sum(axis=0)
+        nothing = (n_cams > 0) & (blank.sum(axis=0) >= background_vote * n_cams)  # (n,)
     for p in pools:
         pooled = pool_views(L, V, eps, p, in_image=in_image, camera_axis=0)  # (n, K)
+        if nothing is not None:
+            pooled[nothing] = 0.0
         ok = np.isfinite(pooled).all(axis=1)
         sums[p][track_id[ok]] += pooled[ok]  # track ids are unique within a frame
         counts[p][track_id[ok]] += 1

@@ -180,6 +180,67 @@ def test_view_pooling_survives_confident_wrong_views(scene):
     assert view_acc > 0.98  # only ties between two visible cameras can go wrong
 
 
+class BlindRecognizer(RasterRecognizer):
+    """Reports no class anywhere in the cameras of ``blind`` (as a camera seeing only background)."""
+
+    def __init__(self, *args, blind=(), **kwargs):
+        super().__init__(*args, **kwargs)
+        self.blind = set(blind)
+
+    def recognize(self, image, context=None):
+        out = super().recognize(image, context)
+        return np.zeros_like(out) if self.rig.index(context.camera) in self.blind else out
+
+
+def test_background_vote_pools_points_most_cameras_see_as_background(scene):
+    from pointtraj.semantics.semantic_map import NOTHING_CONFIDENCE
+
+    rig, traj, label = scene
+    blind = (0, 1, 2)
+    cfg = SemanticsConfig(visibility="observed")
+    off = build_semantic_map(
+        FakeCapture(rig), traj, BlindRecognizer(rig, traj, label, blind=blind), config=cfg
+    )
+    vote = SemanticsConfig(visibility="observed", background_vote=0.5)
+    on = build_semantic_map(
+        FakeCapture(rig), traj, BlindRecognizer(rig, traj, label, blind=blind), config=vote
+    )
+    # brute force: which point-frames do half or more of their cameras see as background?
+    rec = BlindRecognizer(rig, traj, label, blind=blind)
+    nothing = np.zeros(traj.num_point_frames, bool)
+    for t in range(traj.num_frames):
+        fs = traj.frame(t)
+        if len(fs.rows) == 0:
+            continue
+        proj = rig.project(fs.xyz)
+        cams = proj.in_image.T & (fs.visibility > cfg.eps_e)  # (n, C)
+        top = np.stack(
+            [
+                sample_confidences(
+                    rec.recognize(None, ImageContext(name, t)), proj.pixels[c], (W, H)
+                ).max(axis=1)
+                for c, name in enumerate(rig.names)
+            ],
+            axis=1,
+        )  # (n, C)
+        blank = cams & (top < NOTHING_CONFIDENCE)
+        nothing[fs.rows] = (cams.sum(1) > 0) & (blank.sum(1) >= 0.5 * cams.sum(1))
+    assert 0.1 < nothing.mean() < 0.9  # both kinds occur
+    for p in ("view", "average"):
+        expected = np.where(nothing[:, None], 0.0, off.samples[p])
+        np.testing.assert_allclose(on.samples[p], expected, atol=1e-6)
+        np.testing.assert_array_equal(on.count[p], off.count[p])  # zeros still count
+    # the vote lowers L3D exactly where some frames were voted background
+    voted = np.bincount(traj.row_track[nothing], minlength=len(traj)) > 0
+    for p in ("view", "average"):
+        np.testing.assert_allclose(on.L3D[p][~voted], off.L3D[p][~voted], atol=1e-6)
+        assert (on.L3D[p].sum(1) <= off.L3D[p].sum(1) + 1e-6).all()
+    lower = on.L3D["average"].sum(1) < off.L3D["average"].sum(1) - 1e-6
+    assert lower[voted].all()  # the average of a voted frame's cameras was not zero
+    with pytest.raises(ValidationError, match="background_vote"):
+        SemanticsConfig(background_vote=1.5)
+
+
 def test_chunking_and_view_only_do_not_change_the_result(scene):
     rig, traj, label = scene
     a = build_semantic_map(FakeCapture(rig), traj, RasterRecognizer(rig, traj, label))

@@ -52,6 +52,8 @@ def test_from_ground_truth_and_errors(capture, tmp_path):
     )
     assert result.exit_code == 0, result.output
     assert SemanticMap.load(work / "semantic_map.npz").poolings == ("view",)
+    result = runner.invoke(main, [*base, "--recognizer", "simulated", "--background-vote", "2"])
+    assert result.exit_code != 0 and "background_vote: must be in [0, 1], got 2.0" in result.output
     result = runner.invoke(main, [*base, "--recognizer", "magic"])
     assert result.exit_code != 0 and "unknown name 'magic'" in result.output
     result = runner.invoke(main, [*base, "--recognizer", "simulated", "-o", "blurr=2"])
