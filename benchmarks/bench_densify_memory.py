@@ -7,7 +7,9 @@ grown from a fraction of the ground-truth surface points (as ``study_densify.py`
 per budget, side by side in this process, and reports for each: the new points (they must be
 the same for every budget), the images prepared (the camera count when nothing was dropped),
 the peak of the images kept, the peak of all memory that numpy allocated during the call
-(``tracemalloc``), and the CPU time.
+(``tracemalloc``), and the CPU time. It first times one preparation of camera 0's image, as
+the rig is and with lens distortion: the undistortion map dominates a re-preparation on real
+rigs, whose cameras are distorted (the synthetic ones are not).
 
 Usage (the figures of ``docs/reconstruction.md``)::
 
@@ -19,6 +21,7 @@ Usage (the figures of ``docs/reconstruction.md``)::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 import tracemalloc
 from pathlib import Path
@@ -34,6 +37,7 @@ def main() -> None:
     ap.add_argument("--budgets", type=float, nargs="+", default=[1024.0, 128.0, 32.0])
     args = ap.parse_args()
 
+    from pointtraj.camera import CameraRig
     from pointtraj.reconstruct.densify import DensifyConfig, PreparedImages, densify
     from pointtraj.reconstruct.track import _to_grey
     from pointtraj.session import Capture
@@ -53,8 +57,18 @@ def main() -> None:
     one_mb = grey[0].size * 4 / 1e6
     print(
         f"{len(rig)} cameras, {len(X)} seeds, frame {args.frame}; one prepared image "
-        f"{one_mb:.1f} MB, all of them {one_mb * len(rig):.0f} MB\n"
+        f"{one_mb:.1f} MB, all of them {one_mb * len(rig):.0f} MB"
     )
+    # what one (re-)preparation costs, as this rig is and with lens distortion (real rigs)
+    distorted = CameraRig([dataclasses.replace(rig[0], dist=np.array([-0.2, 0.05, 0, 0, 0]))])
+    for name, one_rig in (("this rig's camera 0", rig.subset([0])), ("with k1 = -0.2", distorted)):
+        prep = PreparedImages(one_rig, grey[:1], 0.0)
+        prep._prepare(0)  # warm up
+        t0 = time.perf_counter()
+        for _ in range(20):
+            prep._prepare(0)
+        print(f"one preparation, {name}: {(time.perf_counter() - t0) / 20 * 1000:.1f} ms wall")
+    print()
     print("| budget MB | new points | images prepared | kept at most MB | numpy peak MB | CPU s |")
     print("|---:|---:|---:|---:|---:|---:|")
     reference = None
