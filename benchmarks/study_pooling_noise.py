@@ -68,41 +68,20 @@ ABLATIONS: list[tuple[str, dict]] = [
 ]
 
 
-def first_lag_nc(smap, lag: int, pooling: str) -> tuple[np.ndarray, np.ndarray]:
-    """Per sampled trajectory: NC between its first pooled sample and ``lag`` frames later.
-
-    Returns
-    -------
-    tracks : (n,) int64 ndarray
-        Trajectory indices with both samples defined.
-    nc : (n,) float64 ndarray
-    """
-    lengths = np.diff(smap.sample_offsets)
-    ok = lengths > lag
-    start = smap.sample_offsets[:-1][ok]
-    nc = normalized_correlation(smap.samples[pooling][start], smap.samples[pooling][start + lag])
-    tracks = smap.sample_tracks[ok]
-    keep = np.isfinite(nc)
-    return tracks[keep], nc[keep]
-
-
 def frame_samples(cap, traj, rec, t: int, config: SemanticsConfig):
     """Per-camera confidences (C, N, K) and visibility (N, C) of frame ``t``'s points."""
     from pointtraj.semantics.recognizers.base import ImageContext
-    from pointtraj.semantics.sampling import sample_confidences
-    from pointtraj.semantics.semantic_map import geometric_visibility
+    from pointtraj.semantics.semantic_map import geometric_visibility, sample_views
 
     names = list(traj.camera_names)
     rig = cap.rig.subset(names)
     fs = traj.frame(t)
     V = geometric_visibility(rig, fs.xyz, fs.visibility, config)
-    proj = rig.project(fs.xyz)
-    L = np.zeros((len(names), len(fs.track_id), len(rec.class_names)), np.float32)
-    for c, name in enumerate(names):
-        L2D = rec.recognize(None, ImageContext(camera=name, frame=t, capture=str(rec.capture)))
-        use = np.asarray(proj.in_image[c], bool) & (V[:, c] > config.eps_e)
-        px = np.where(use[:, None], proj.pixels[c], np.nan)
-        L[c] = sample_confidences(L2D, px, tuple(rig.sizes[c]))
+    maps = [
+        rec.recognize(None, ImageContext(camera=name, frame=t, capture=str(rec.capture)))
+        for name in names
+    ]
+    L, _ = sample_views(rig, np.asarray(rig.sizes), maps, fs.xyz, V, config.eps_e)
     return fs.track_id, L, V
 
 
@@ -213,7 +192,7 @@ def main() -> None:
         secs = time.perf_counter() - t0
         cells = []
         for p in POOLS:
-            tracks, nc = first_lag_nc(smap, lag, p)
+            tracks, nc = smap.first_frame_nc(lag, p)
             deficit = 1.0 - nc
             share = deficit[truth[tracks] == hand].sum() / max(deficit.sum(), 1e-12)
             cells.append(f"{nc.mean():.3f} / {np.mean(nc < 0.5):.3f} / {share:.2f}")

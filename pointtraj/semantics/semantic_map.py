@@ -22,6 +22,7 @@ import contextlib
 import json
 import logging
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -40,6 +41,7 @@ __all__ = [
     "SemanticMap",
     "build_semantic_map",
     "geometric_visibility",
+    "sample_views",
     "normalized_correlation",
     "load_semantic_map",
     "save_semantic_map",
@@ -333,6 +335,29 @@ class SemanticMap:
         n : int
             Number of trajectories averaged.
         """
+        _, nc = self.first_frame_nc(lag, pooling, trajectories)
+        if nc.size == 0:
+            return float("nan"), float("nan"), 0
+        return float(nc.mean()), float(nc.std()), int(nc.size)
+
+    def first_frame_nc(
+        self, lag: int, pooling: str | None = None, trajectories: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per trajectory, the NC that :meth:`temporal_consistency` averages.
+
+        Parameters
+        ----------
+        lag, pooling, trajectories
+            As :meth:`temporal_consistency`.
+
+        Returns
+        -------
+        tracks : (n,) int64 ndarray
+            The sampled trajectories that live at least ``lag + 1`` frames and whose two pooled
+            samples give a defined NC.
+        nc : (n,) float64 ndarray
+            ``NC(L_pool(first frame), L_pool(first frame + lag))`` of each.
+        """
         p = self._pooling(pooling)
         if p not in self.samples:
             raise ValidationError(f"pooling: no per-frame samples kept for {p!r}")
@@ -343,10 +368,8 @@ class SemanticMap:
             ok &= mask[self.sample_tracks]
         start = self.sample_offsets[:-1][ok]
         nc = normalized_correlation(self.samples[p][start], self.samples[p][start + lag])
-        nc = nc[np.isfinite(nc)]
-        if nc.size == 0:
-            return float("nan"), float("nan"), 0
-        return float(nc.mean()), float(nc.std()), int(nc.size)
+        defined = np.isfinite(nc)
+        return self.sample_tracks[ok][defined].astype(np.int64), nc[defined]
 
     def save(self, path: str | os.PathLike) -> None:
         """Write ``semantic_map.npz`` atomically (format: ``data_specs/semantic_map.md``)."""
@@ -629,6 +652,58 @@ def build_semantic_map(
     )
 
 
+def sample_views(
+    rig: Any,
+    sizes: np.ndarray,
+    maps: Sequence[np.ndarray | None],
+    xyz: np.ndarray,
+    V: np.ndarray,
+    eps_e: float,
+    only_visible: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One frame's confidence maps sampled at its points' projections, camera by camera.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    sizes : (C, 2) int ndarray
+        Image sizes (W, H) the projections refer to.
+    maps : sequence of C (h, w, K) float ndarrays or None
+        Each camera's L2D (None: a camera not needed; its rows stay 0). At least one is given.
+    xyz : (n, 3) float ndarray
+    V : (n, C) float ndarray
+        Visibility.
+    eps_e : float
+        With ``only_visible``, cameras with ``V <= eps_e`` are not sampled (their rows stay 0).
+    only_visible : bool
+        Sample only where ``V > eps_e`` (every pooling but ``average`` needs no more).
+
+    Returns
+    -------
+    L : (C, n, K) float32 ndarray
+        Bilinear samples (:func:`~pointtraj.semantics.sampling.sample_confidences`); 0 where a
+        point projects outside the image or is not sampled.
+    in_image : (C, n) bool ndarray
+        Whether each point projects inside each image, in front of the camera.
+    """
+    K = next(m.shape[2] for m in maps if m is not None)
+    n, C = len(xyz), len(maps)
+    proj = rig.project(xyz)
+    in_image = np.asarray(proj.in_image, dtype=bool)  # (C, n)
+    L = np.zeros((C, n, K), dtype=np.float32)
+    for c, L2D in enumerate(maps):
+        if L2D is None:
+            continue
+        use = in_image[c] & (V[:, c] > eps_e) if only_visible else in_image[c]
+        if use.all():
+            L[c] = sample_confidences(L2D, proj.pixels[c], tuple(sizes[c]))
+        elif use.any():  # unused rows sample to 0 as NaN pixels
+            px = np.where(use[:, None], proj.pixels[c], np.nan)  # (n, 2)
+            L[c] = sample_confidences(L2D, px, tuple(sizes[c]))
+    return L, in_image
+
+
 def _pool_chunk(
     xyz: np.ndarray,
     V: np.ndarray,
@@ -648,24 +723,9 @@ def _pool_chunk(
     background_vote: float = 0.0,
 ) -> None:
     """Sample, pool and accumulate one chunk of one frame's points."""
-    n = len(track_id)
-    C = len(maps)
-    K = next(m.shape[2] for m in maps if m is not None) if any(m is not None for m in maps) else 0
-    if K == 0:
+    if all(m is None for m in maps):
         return
-    proj = rig.project(xyz)
-    in_image = np.asarray(proj.in_image, dtype=bool)  # (C, n)
-    only_visible = "average" not in pools
-    L = np.zeros((C, n, K), dtype=np.float32)
-    for c, L2D in enumerate(maps):
-        if L2D is None:
-            continue
-        use = in_image[c] & (V[:, c] > eps) if only_visible else in_image[c]
-        if use.all():
-            L[c] = sample_confidences(L2D, proj.pixels[c], tuple(sizes[c]))
-        elif use.any():  # unused rows sample to 0 as NaN pixels
-            px = np.where(use[:, None], proj.pixels[c], np.nan)  # (n, 2)
-            L[c] = sample_confidences(L2D, px, tuple(sizes[c]))
+    L, in_image = sample_views(rig, sizes, maps, xyz, V, eps, only_visible="average" not in pools)
     sel = slot[track_id]  # (n,)
     has_sample = sel >= 0
     rows = sample_offsets[sel[has_sample]] + (t - first_frame[track_id[has_sample]])

@@ -284,6 +284,15 @@ def test_temporal_consistency_and_nc(scene):
     _, _, n_half = smap.temporal_consistency(2, "view", mask)
     _, _, n_all = smap.temporal_consistency(2, "view", np.ones(len(traj), bool))
     assert n_all == n2 and 0 < n_half < n2
+    # the per-trajectory values behind the mean: each trajectory's first sample against lag 2
+    tracks, values = smap.first_frame_nc(2, "view")
+    assert len(tracks) == n2
+    assert values.mean() == pytest.approx(smap.temporal_consistency(2, "view")[0])
+    np.testing.assert_array_equal(smap.sample_tracks, np.arange(len(traj)))  # all sampled
+    for m, v in zip(tracks[:5], values[:5], strict=True):
+        first = smap.sample_offsets[m]
+        rows = smap.samples["view"][[first, first + 2]]
+        assert v == pytest.approx(normalized_correlation(rows[:1], rows[1:])[0])
     assert smap.temporal_consistency(2, "view", np.zeros(len(traj), bool))[2] == 0
     with pytest.raises(ValidationError, match="trajectories"):
         smap.temporal_consistency(2, "view", mask[:1])
