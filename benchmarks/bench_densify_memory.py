@@ -37,23 +37,14 @@ def main() -> None:
     ap.add_argument("--budgets", type=float, nargs="+", default=[1024.0, 128.0, 32.0])
     args = ap.parse_args()
 
+    from study_densify import ground_truth_seeds
+
     from pointtraj.camera import CameraRig
     from pointtraj.reconstruct.densify import DensifyConfig, PreparedImages, densify
-    from pointtraj.reconstruct.track import _to_grey
     from pointtraj.session import Capture
-    from pointtraj.synth.groundtruth import load_ground_truth
 
-    cap = Capture.open(args.capture)
-    rig = cap.rig
-    gt = load_ground_truth(args.capture)
-    cols = [list(gt.camera_names).index(n) for n in rig.names]
-    visible = gt.visible[:, args.frame][:, cols]  # (M, C)
-    rng = np.random.default_rng(0)
-    pick = (visible.sum(axis=1) >= 2) & (rng.random(len(visible)) < args.seed_fraction)
-    X = gt.xyz[pick, args.frame].astype(np.float64)
-    pix = rig.project(X).pixels
-    pix[~visible[pick].T] = np.nan
-    grey = [_to_grey(cap.read(n, args.frame)) for n in rig.names]
+    rig = Capture.open(args.capture).rig
+    X, pix, grey = ground_truth_seeds(args.capture, rig, args.frame, args.seed_fraction)
     one_mb = grey[0].size * 4 / 1e6
     print(
         f"{len(rig)} cameras, {len(X)} seeds, frame {args.frame}; one prepared image "

@@ -59,11 +59,18 @@ def _errors(capture: Path, rig, frame: int, xyz: np.ndarray) -> dict:
     }
 
 
-def from_seeds(capture: Path, rig, frame: int, fraction: float, setting: dict) -> dict:
-    """Part 1: grow from ground-truth seeds with one setting."""
-    from pointtraj.reconstruct.densify import DensifyConfig, densify, prepare_images
+def ground_truth_seeds(capture: Path, rig, frame: int, fraction: float):
+    """A seeded random ``fraction`` of the frame's ground-truth points that 2+ cameras see.
+
+    Returns
+    -------
+    X : (N, 3) float64 ndarray
+    pixels : (C, N, 2) float ndarray
+        Their true projections, NaN in the cameras that do not see them.
+    grey : list of C (H, W) uint8 ndarrays
+        The frame's grey images.
+    """
     from pointtraj.reconstruct.track import _to_grey
-    from pointtraj.reconstruct.triangulate import TriangulationConfig, triangulate_ransac
     from pointtraj.session import Capture
     from pointtraj.synth.groundtruth import load_ground_truth
 
@@ -76,7 +83,16 @@ def from_seeds(capture: Path, rig, frame: int, fraction: float, setting: dict) -
     X = gt.xyz[pick, frame].astype(np.float64)
     pix = rig.project(X).pixels
     pix[~visible[pick].T] = np.nan
-    grey = prepare_images(rig, [_to_grey(cap.read(n, frame)) for n in rig.names])
+    return X, pix, [_to_grey(cap.read(n, frame)) for n in rig.names]
+
+
+def from_seeds(capture: Path, rig, frame: int, fraction: float, setting: dict) -> dict:
+    """Part 1: grow from ground-truth seeds with one setting."""
+    from pointtraj.reconstruct.densify import DensifyConfig, densify, prepare_images
+    from pointtraj.reconstruct.triangulate import TriangulationConfig, triangulate_ransac
+
+    X, pix, grey_u8 = ground_truth_seeds(capture, rig, frame, fraction)
+    grey = prepare_images(rig, grey_u8)
     cfg = DensifyConfig(enabled=True, **setting)
     c0 = time.process_time()
     obs = densify(rig, grey, X, pix, pix, cfg)
