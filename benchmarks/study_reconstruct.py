@@ -313,7 +313,8 @@ def main() -> None:
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
-    from pointtraj.reconstruct.cli import load_reconstruct_config, parse_frames
+    from pointtraj.reconstruct.cli import load_reconstruct_config
+    from pointtraj.workdir import parse_frames
     from pointtraj.reconstruct.track import reconstruct_capture
     from pointtraj.session import Capture
 

@@ -49,7 +49,7 @@ def _config_from(cls, path: Path | None, table: str, overrides: dict):
 def affinity(work: Path, config_path: Path | None, **options) -> None:
     """Compute WORK/affinity.npz from WORK/trajectories.npz (paper Section 4.2)."""
     from .affinity import AffinityConfig
-    from .pipeline_cli import ProgressBars
+    from .cli_common import ProgressBars
     from .stages import affinity_work
 
     cfg = _config_from(AffinityConfig, config_path, "affinity", options)
@@ -83,7 +83,7 @@ def affinity(work: Path, config_path: Path | None, **options) -> None:
 )
 def label(work: Path, no_clouds: bool, config_path: Path | None, **options) -> None:
     """Label every trajectory by alpha-expansion: WORK/labels.npz, labels.csv, clouds/*.ply."""
-    from .pipeline_cli import ProgressBars
+    from .cli_common import ProgressBars
     from .stages import LabelStageConfig, label_work
 
     if no_clouds:

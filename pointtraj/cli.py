@@ -41,6 +41,14 @@ class LazyGroup(click.Group):
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted(set(super().list_commands(ctx)) | set(COMMANDS))
 
+    def invoke(self, ctx: click.Context):
+        """Run the subcommand; an error of pointtraj's or of the OS that it let through still
+        reaches the user as one line (:func:`pointtraj.cli_common.cli_errors`)."""
+        from .cli_common import cli_errors
+
+        with cli_errors():
+            return super().invoke(ctx)
+
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
         if name in COMMANDS:
             module, attr = COMMANDS[name].split(":")

@@ -16,6 +16,8 @@ __all__ = [
     "PointtrajError",
     "ValidationError",
     "FileFormatError",
+    "WriteError",
+    "WorkFolderError",
     "check_array",
 ]
 
@@ -43,6 +45,28 @@ class FileFormatError(PointtrajError, ValueError):
         self.path = str(path)
         self.message = message
         super().__init__(f"{self.path}: {message}")
+
+
+class WriteError(PointtrajError):
+    """An output could not be written whole (a full disk, a read-only folder, a writer that
+    produced a truncated file). The previous file at that path, if any, is intact.
+
+    Parameters
+    ----------
+    path : path-like
+        The destination.
+    message : str
+        What went wrong.
+    """
+
+    def __init__(self, path: str | PathLike, message: str) -> None:
+        self.path = str(path)
+        self.message = message
+        super().__init__(f"{self.path}: {message}")
+
+
+class WorkFolderError(PointtrajError):
+    """A work folder cannot be used: another run holds it, or it is not pointtraj's to change."""
 
 
 def check_array(

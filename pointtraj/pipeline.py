@@ -297,7 +297,7 @@ class _Stage:
     timing: str = ""  # key in timings.json (default: the stage name)
 
 
-def _stage_plan(config: PipelineConfig) -> list[_Stage]:
+def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Stage]:
     from . import stages
     from .synth.groundtruth import frame_file
 
@@ -335,7 +335,7 @@ def _stage_plan(config: PipelineConfig) -> list[_Stage]:
                 {"reconstruct": config.reconstruct, "frames": config.frames},
                 lambda: _capture_stamp(cap),
                 [wf.trajectories],
-                lambda p: _reconstruct(config, p),
+                lambda p: _reconstruct(config, p, force_folder),
                 "reconstruct",
             )
         )
@@ -426,29 +426,17 @@ def _fetch_example(name: str, capture: Path) -> None:
     fetch_example(name, capture)
 
 
-def _reconstruct(config: PipelineConfig, progress: Progress | None) -> None:
+def _reconstruct(config: PipelineConfig, progress: Progress | None, force: bool) -> None:
     """Reconstruct, resuming an interrupted run of the same settings, else starting afresh."""
     from . import stages
-    from .session import Capture
 
-    wf = WorkFolder(config.work)
-    restart = False
-    if wf.state.is_dir():
-        from .workdir import parse_frames
-
-        n = Capture.open(config.capture).num_frames
-        wanted = {"reconstruct_run": None, "reconstruct": None} | wf.run_document(
-            config.capture, parse_frames(config.frames, n), config.reconstruct
-        )
-        restart = wf.run_identity() != wanted
-        if restart:
-            logger.info("%s: parameters changed, reconstructing afresh", wf.path)
     stages.reconstruct_work(
-        wf.path,
+        config.work,
         config.capture,
         config.reconstruct,
         config.frames,
-        restart=restart,
+        on_change="restart",
+        force=force,
         progress=progress,
     )
 
@@ -476,6 +464,7 @@ def run_pipeline(
     force: Sequence[str] = (),
     progress: Progress | None = None,
     on_stage: Callable[[str, str], None] | None = None,
+    force_folder: bool = False,
 ) -> PipelineResult:
     """Run a pipeline's stages, skipping those that are up to date.
 
@@ -488,6 +477,8 @@ def run_pipeline(
         Passed to every stage.
     on_stage : callable, optional
         ``on_stage(stage, event)`` with event ``"start"``, ``"skip"`` or ``"done"``.
+    force_folder : bool
+        Use a work folder that is non-empty and not pointtraj's (its removed files are logged).
 
     Returns
     -------
@@ -502,15 +493,28 @@ def run_pipeline(
     if bad:
         raise ValidationError(f"force: unknown stage {bad[0]!r} (valid: all, {', '.join(STAGES)})")
     wf = WorkFolder(config.work)
-    wf.path.mkdir(parents=True, exist_ok=True)
     if config.synth is None and config.example is None and not Path(config.capture).is_dir():
         raise FileFormatError(config.capture, "capture folder does not exist")
+    wf.claim(force_folder)
+    with wf.lock("pointtraj run"):
+        return _run_locked(config, wf, force, progress, on_stage, force_folder)
+
+
+def _run_locked(
+    config: PipelineConfig,
+    wf: WorkFolder,
+    force: Sequence[str],
+    progress: Progress | None,
+    on_stage: Callable[[str, str], None] | None,
+    force_folder: bool,
+) -> PipelineResult:
+    """:func:`run_pipeline` inside the work folder's lock."""
     state = _read_json(wf.pipeline_state)
     if state.get("version") != _STATE_VERSION:
         state = {"version": _STATE_VERSION, "stages": {}}
     timings = _read_json(wf.timings)
     result = PipelineResult(work=wf.path)
-    for stage in _stage_plan(config):
+    for stage in _stage_plan(config, force_folder):
         key = _key(stage.params, stage.inputs())
         done = state["stages"].get(stage.name, {})
         fresh = (

@@ -3,47 +3,16 @@
 from __future__ import annotations
 
 import logging
-import sys
 from pathlib import Path
 
 import click
 
+from .cli_common import ProgressBars, cli_errors
 from .errors import PointtrajError
 
-__all__ = ["run", "demo", "ProgressBars"]
+__all__ = ["run", "demo"]
 
 logger = logging.getLogger(__name__)
-
-
-class ProgressBars:
-    """A ``progress(label, done, total)`` callable that shows one click progress bar per step.
-
-    A new label closes the previous bar and opens a new one; :meth:`close` ends the last.
-    """
-
-    def __init__(self) -> None:
-        self._bar = None
-        self._label: str | None = None
-        self._done = 0
-
-    def __call__(self, label: str, done: int, total: int) -> None:
-        if label != self._label or self._bar is None:
-            self.close()
-            self._bar = click.progressbar(
-                length=max(int(total), 1), label=f"  {label}", show_pos=True, file=sys.stderr
-            )
-            self._bar.__enter__()
-            self._label, self._done = label, 0
-        step = int(done) - self._done
-        if step > 0:
-            self._bar.update(step)
-            self._done = int(done)
-
-    def close(self) -> None:
-        """Finish the bar on screen, if any."""
-        if self._bar is not None:
-            self._bar.__exit__(None, None, None)
-        self._bar, self._label = None, None
 
 
 def _announce(stage: str, event: str) -> None:
@@ -53,7 +22,7 @@ def _announce(stage: str, event: str) -> None:
         click.echo(f"{stage} ...", err=True)
 
 
-def run_and_report(config, force: tuple[str, ...] = ()):
+def run_and_report(config, force: tuple[str, ...] = (), force_folder: bool = False):
     """Run a pipeline with progress bars; turn library errors into one-line CLI errors."""
     from .pipeline import run_pipeline
 
@@ -64,13 +33,10 @@ def run_and_report(config, force: tuple[str, ...] = ()):
         _announce(stage, event)
 
     try:
-        return run_pipeline(config, force=force, progress=bars, on_stage=on_stage)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
-    except OSError as exc:
-        raise click.ClickException(
-            f"{exc.filename or config.work}: {exc.strerror or exc}"
-        ) from None
+        with cli_errors(config.work):
+            return run_pipeline(
+                config, force=force, progress=bars, on_stage=on_stage, force_folder=force_folder
+            )
     finally:
         bars.close()
 
@@ -104,7 +70,19 @@ def _summary(result) -> list[str]:
     metavar="STAGE",
     help="Re-run this stage even if it is up to date (repeatable; `all` for every stage).",
 )
-def run(config_path: Path, work: Path | None, capture: Path | None, force: tuple[str, ...]) -> None:
+@click.option(
+    "--force-folder",
+    is_flag=True,
+    help="Use the work folder even if it is a non-empty folder that pointtraj did not make (the "
+    "files removed are logged).",
+)
+def run(
+    config_path: Path,
+    work: Path | None,
+    capture: Path | None,
+    force: tuple[str, ...],
+    force_folder: bool,
+) -> None:
     """Run the pipeline described by CONFIG (a pipelines/*.toml file), skipping what is done.
 
     Relative paths in CONFIG are taken from the current folder. An interrupted run resumes.
@@ -116,7 +94,7 @@ def run(config_path: Path, work: Path | None, capture: Path | None, force: tuple
     except PointtrajError as exc:
         raise click.ClickException(str(exc)) from None
     click.echo(f"pipeline {config.name or config_path.stem}: work folder {config.work}", err=True)
-    result = run_and_report(config, force)
+    result = run_and_report(config, force, force_folder)
     for line in _summary(result):
         click.echo(line)
     _headline(result)

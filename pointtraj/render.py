@@ -42,6 +42,7 @@ from .atomic import atomic_path, write_text_atomic
 from .camera import Camera, CameraRig
 from .errors import FileFormatError, ValidationError
 from .trajectories import Trajectories
+from .workdir import WorkFolder, locked
 
 if TYPE_CHECKING:
     from .labelset import LabelSet
@@ -1262,10 +1263,11 @@ def _settings(kind: str, name: str, scene: _Scene, cfg: RenderConfig) -> dict:
     )
 
 
-def _prepare_folder(folder: Path, settings: dict) -> bool:
+def _prepare_folder(folder: Path, settings: dict, owned: set[Path] | None = None) -> bool:
     """Make ``folder``; if its frames were made with other settings, delete them.
 
-    Returns True when existing frames are up to date (may be kept).
+    ``owned``: the files pointtraj wrote (the work folder's manifest); when given, only those
+    frames are deleted. Returns True when existing frames are up to date (may be kept).
     """
     marker = folder / "render.json"
     old = None
@@ -1275,6 +1277,8 @@ def _prepare_folder(folder: Path, settings: dict) -> bool:
     if old == settings:
         return True
     stale = [p for p in folder.glob("*.png") if _FRAME_PNG.match(p.name)] if folder.is_dir() else []
+    if owned is not None:
+        stale = [p for p in stale if p.resolve() in owned]
     if stale:
         logger.info("%s: settings or inputs changed; deleting %d old frames", folder, len(stale))
         for p in stale:
@@ -1284,6 +1288,7 @@ def _prepare_folder(folder: Path, settings: dict) -> bool:
     return False
 
 
+@locked("pointtraj render")
 def render_work(
     work: str | os.PathLike,
     config: RenderConfig | None = None,
@@ -1328,6 +1333,8 @@ def render_work(
     cfg = config or RenderConfig()
     work = Path(work)
     scene = _load_scene(work, cfg)
+    wf = WorkFolder(work)
+    owned = wf.owned() if wf.manifest.is_file() else None
     traj, capture = scene.trajectories, scene.capture
     rig = capture.rig if capture is not None else None
     frames = _resolve_frames(cfg.frames, traj, cfg.stride)
@@ -1409,7 +1416,7 @@ def render_work(
     done = 0
 
     for out in outputs:
-        fresh = _prepare_folder(out.folder, _settings(out.kind, out.name, scene, cfg))
+        fresh = _prepare_folder(out.folder, _settings(out.kind, out.name, scene, cfg), owned)
         renderer = None
         if out.kind == "view" and cfg.engine == "open3d":
             renderer = TrajectoryRenderer(

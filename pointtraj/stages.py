@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
-import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -198,6 +197,8 @@ def reconstruct_work(
     frames: str | range | None = None,
     *,
     restart: bool = False,
+    on_change: str = "refuse",
+    force: bool = False,
     progress: Progress | None = None,
 ) -> Trajectories:
     """Reconstruct the capture's trajectories into the work folder, resuming an interrupted run.
@@ -209,7 +210,12 @@ def reconstruct_work(
     frames : str or range, optional
         ``"A:B"`` or a range (default: all frames).
     restart : bool
-        Discard a previous run's per-frame state instead of resuming it.
+        Discard a previous run's per-frame state and clouds instead of resuming it.
+    on_change : {"refuse", "restart"}
+        What to do when the folder holds a run of another capture, frame range or parameter
+        set: refuse (the command line's default), or restart (``pointtraj run``'s).
+    force : bool
+        Use (and clear) a non-empty folder that pointtraj did not make.
     progress : Progress, optional
 
     Returns
@@ -219,39 +225,58 @@ def reconstruct_work(
     Raises
     ------
     ValidationError
-        If the folder holds a run of another capture, frame range or parameter set and
-        ``restart`` is False.
+        If the folder holds another run and neither ``restart`` nor ``on_change="restart"``.
+    WorkFolderError
+        If another run holds the folder, or it is not a pointtraj work folder and not ``force``.
+
+    Notes
+    -----
+    A restart removes only the files pointtraj wrote (:meth:`WorkFolder.remove_outputs`).
     """
     from .reconstruct.track import ReconstructConfig, reconstruct_capture
     from .session import Capture
 
+    if on_change not in ("refuse", "restart"):
+        raise ValidationError(f"on_change: 'refuse' or 'restart', got {on_change!r}")
     cfg = config or ReconstructConfig()
     wf = WorkFolder(work)
     cap = Capture.open(capture)
     rng = frames if isinstance(frames, range) else parse_frames(frames, int(cap.num_frames))
-    if wf.state.is_dir() and not restart:
-        wanted = {"reconstruct_run": None, "reconstruct": None} | wf.run_document(capture, rng, cfg)
-        if wf.run_identity() != wanted:
-            raise ValidationError(
-                f"{wf.path} holds a reconstruction of another capture, frame range or parameter "
-                "set; restart it or use another work folder"
+    wf.claim(force)
+    with wf.lock("pointtraj reconstruct"):
+        has_run = wf.state.is_dir() or wf.clouds.is_dir()
+        if has_run and not restart:
+            wanted = {"reconstruct_run": None, "reconstruct": None} | wf.run_document(
+                capture, rng, cfg
             )
-    if restart:
-        for sub in (wf.state, wf.clouds):
-            if sub.is_dir():
-                shutil.rmtree(sub)
-    wf.write_toml(capture, rng, cfg)
-    done = [0]
+            if wf.run_identity() != wanted:
+                if on_change == "refuse":
+                    raise ValidationError(
+                        f"{wf.path} holds a reconstruction of another capture, frame range or "
+                        "parameter set; pass --restart (restart=True) or use another work folder"
+                    )
+                logger.info(
+                    "%s: capture, frames or parameters changed; reconstructing afresh", wf.path
+                )
+                restart = True
+        if restart:
+            wf.remove_outputs(["state", "clouds"], force=force)
+        wf.write_toml(capture, rng, cfg)
+        done = [0]
 
-    def on_frame(rec: Any) -> None:
-        done[0] += 1
-        _report(progress, "reconstruct", done[0], len(rng))
+        def on_frame(rec: Any) -> None:
+            done[0] += 1
+            _report(progress, "reconstruct", done[0], len(rng))
 
-    return reconstruct_capture(cap, wf.path, rng, cfg, on_frame=on_frame)
+        return reconstruct_capture(cap, wf.path, rng, cfg, on_frame=on_frame)
 
 
 def ground_truth_work(
-    work: str | os.PathLike, capture: str | os.PathLike, min_visible: int = 2
+    work: str | os.PathLike,
+    capture: str | os.PathLike,
+    min_visible: int = 2,
+    *,
+    force: bool = False,
 ) -> Trajectories:
     """Write the synthetic capture's ground-truth trajectories as the work folder's store.
 
@@ -260,6 +285,8 @@ def ground_truth_work(
     work, capture : path-like
     min_visible : int
         Keep point-frames seen by at least this many cameras.
+    force : bool
+        Use a non-empty folder that pointtraj did not make.
 
     Returns
     -------
@@ -269,9 +296,11 @@ def ground_truth_work(
 
     wf = WorkFolder(work)
     wf.check_capture(capture)
-    trajectories = load_ground_truth(capture).to_trajectories(min_visible=min_visible)
-    wf.write_toml(capture)
-    trajectories.save(wf.trajectories)
+    wf.claim(force)
+    with wf.lock("pointtraj gt-trajectories"):
+        trajectories = load_ground_truth(capture).to_trajectories(min_visible=min_visible)
+        wf.write_toml(capture)
+        trajectories.save(wf.trajectories)
     logger.info("wrote %d ground-truth trajectories to %s", len(trajectories), wf.trajectories)
     return trajectories
 
@@ -331,21 +360,22 @@ def semantics_work(
 
     cfg = config or SemanticsStageConfig()
     wf = WorkFolder(work)
-    cap = Capture.open(wf.require_capture(capture))
-    recognizer = make_stage_recognizer(cfg, cap)
-    trajectories = Trajectories.load(wf.trajectories)
-    smap = build_semantic_map(
-        cap,
-        trajectories,
-        recognizer,
-        config=cfg.semantics_config(),
-        progress=progress is not None,
-    )
-    # The options as given (not the capture, which the simulated recogniser gets anew).
-    smap.recognizer_options = {
-        k: v for k, v in cfg.options.items() if isinstance(v, str | int | float | bool)
-    }
-    smap.save(wf.semantic_map)
+    with wf.lock("pointtraj semantics"):
+        cap = Capture.open(wf.require_capture(capture))
+        recognizer = make_stage_recognizer(cfg, cap)
+        trajectories = Trajectories.load(wf.trajectories)
+        smap = build_semantic_map(
+            cap,
+            trajectories,
+            recognizer,
+            config=cfg.semantics_config(),
+            progress=progress is not None,
+        )
+        # The options as given (not the capture, which the simulated recogniser gets anew).
+        smap.recognizer_options = {
+            k: v for k, v in cfg.options.items() if isinstance(v, str | int | float | bool)
+        }
+        smap.save(wf.semantic_map)
     return smap
 
 
@@ -365,13 +395,14 @@ def affinity_work(
     from .trajectories import Trajectories
 
     wf = WorkFolder(work)
-    trajectories = Trajectories.load(wf.trajectories)
-    graph = compute_affinity(
-        trajectories,
-        config or AffinityConfig(),
-        progress=None if progress is None else lambda s, d, n: progress("affinity", d, n),
-    )
-    save_affinity(graph, wf.affinity)
+    with wf.lock("pointtraj affinity"):
+        trajectories = Trajectories.load(wf.trajectories)
+        graph = compute_affinity(
+            trajectories,
+            config or AffinityConfig(),
+            progress=None if progress is None else lambda s, d, n: progress("affinity", d, n),
+        )
+        save_affinity(graph, wf.affinity)
     return graph
 
 
@@ -395,14 +426,23 @@ def label_work(
     FileFormatError
         If an input is missing, or the inputs disagree on the number of trajectories.
     """
+    cfg = config or LabelStageConfig()
+    wf = WorkFolder(work)
+    with wf.lock("pointtraj label"):
+        return _label_locked(wf, cfg, progress)
+
+
+def _label_locked(
+    wf: WorkFolder, cfg: LabelStageConfig, progress: Progress | None
+) -> TrajectoryLabels:
+    """:func:`label_work` inside the work folder's lock."""
     from .affinity import load_affinity
+    from .atomic import write_text_atomic
     from .labelfile import TrajectoryLabels, save_labels
     from .labeling import argmax_labels, label_trajectories
     from .semantics.semantic_map import SemanticMap
     from .trajectories import Trajectories
 
-    cfg = config or LabelStageConfig()
-    wf = WorkFolder(work)
     trajectories = Trajectories.load(wf.trajectories)
     if not wf.semantic_map.is_file():
         raise FileFormatError(wf.semantic_map, "no such file (run `pointtraj semantics` first)")
@@ -444,13 +484,18 @@ def label_work(
         pooling=cfg.pooling,
         params=dataclasses.asdict(lab_cfg),
     )
-    save_labels(result, wf.labels, trajectories.first_frame, trajectories.lengths)
+    # The clouds and labels.npz are one unit: the clouds first, labels.npz last. While the
+    # clouds are rewritten a pending mark says so; a run killed then leaves it behind, and the
+    # next run (and any reader of the clouds) knows they mix two labellings.
     if cfg.write_clouds and wf.clouds.is_dir():
         frames = sorted(int(p.stem) for p in wf.clouds.glob("*.ply") if p.stem.isdigit())
         frames = [t for t in frames if t < trajectories.num_frames]
+        write_text_atomic(wf.labels_pending, f"{len(frames)} clouds being relabelled\n")
         for i, t in enumerate(frames):
             trajectories.write_frame_ply(t, wf.cloud(t), labels=result.labels)
             _report(progress, "label: clouds", i + 1, len(frames))
+    save_labels(result, wf.labels, trajectories.first_frame, trajectories.lengths)
+    wf.labels_pending.unlink(missing_ok=True)
     logger.info(
         "labelled %d trajectories (%d unlabelled, %d changed from the argmax), energy %.6g -> "
         "%.6g in %.1f s",

@@ -7,19 +7,44 @@ reads and writes ``work.toml``.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import functools
+import json
 import logging
 import os
+import re
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
-from .errors import FileFormatError, ValidationError
+from .errors import FileFormatError, ValidationError, WorkFolderError
 
-__all__ = ["WorkFolder", "parse_frames", "WORK_TOML"]
+__all__ = ["WorkFolder", "parse_frames", "locked", "WORK_TOML", "OWN_NAMES"]
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 logger = logging.getLogger(__name__)
 
 #: Name of the file that records the capture and the reconstruction run.
 WORK_TOML = "work.toml"
+
+#: pointtraj's own folder inside a work folder: the lock and the manifest.
+_OWN_DIR = ".pointtraj"
+
+#: Files that pointtraj writes in a work folder of an older version without a manifest, by
+#: subfolder: only these may be removed there (``--force-folder`` too).
+OWN_NAMES = {
+    "state": re.compile(r"^\d{6}\.npz$"),
+    "clouds": re.compile(r"^\d{6}\.ply$"),
+}
+
+# Work folders this process holds, with how many times (the lock is re-entrant per process).
+_held: dict[Path, list] = {}
+_held_lock = threading.Lock()
 
 
 def parse_frames(text: str | None, num_frames: int) -> range:
@@ -244,6 +269,243 @@ class WorkFolder:
         data = self.read_toml()
         return {k: data.get(k) for k in ("capture", "reconstruct_run", "reconstruct")}
 
+    # -- ownership ---------------------------------------------------------------------------
+    @property
+    def manifest(self) -> Path:
+        """``.pointtraj/manifest``: every file pointtraj installed here, one relative path a
+        line (appended while the folder is locked)."""
+        return self.path / _OWN_DIR / "manifest"
+
+    @property
+    def lock_file(self) -> Path:
+        """``.pointtraj/lock``: who holds the folder (pid, host, command, since)."""
+        return self.path / _OWN_DIR / "lock"
+
+    @property
+    def labels_pending(self) -> Path:
+        """``.pointtraj/labels-pending``: present while ``label`` rewrites the clouds, so that
+        an interrupted rewrite is known (the clouds then mix two labellings)."""
+        return self.path / _OWN_DIR / "labels-pending"
+
+    def is_pointtraj(self) -> bool:
+        """Whether the folder holds pointtraj's marks (its own folder, ``work.toml``, a pipeline
+        record or a trajectory store)."""
+        return any(
+            p.exists()
+            for p in (self.path / _OWN_DIR, self.work_toml, self.pipeline_state, self.trajectories)
+        )
+
+    def owned(self) -> set[Path]:
+        """The files the manifest lists that still exist (absolute paths)."""
+        if not self.manifest.is_file():
+            return set()
+        try:
+            lines = self.manifest.read_text(encoding="utf-8").splitlines()
+        except OSError as exc:
+            raise FileFormatError(self.manifest, f"unreadable ({exc.strerror or exc})") from None
+        root = self.path.resolve()
+        return {root / line for line in lines if line and (root / line).is_file()}
+
+    def claim(self, force: bool = False) -> None:
+        """Refuse to write into an existing, non-empty folder that is not a work folder.
+
+        Parameters
+        ----------
+        force : bool
+            Take the folder over anyway (it is logged).
+
+        Raises
+        ------
+        WorkFolderError
+            If the folder holds files but no pointtraj mark, and ``force`` is False.
+        """
+        if not self.path.is_dir() or self.is_pointtraj():
+            return
+        entries = sorted(p.name for p in self.path.iterdir())
+        if not entries:
+            return
+        if not force:
+            shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
+            raise WorkFolderError(
+                f"{self.path}: not a pointtraj work folder (it holds {shown} but no work.toml); "
+                "choose a new or empty folder, or pass --force-folder to use it anyway"
+            )
+        logger.warning("%s: using a folder that is not a pointtraj work folder", self.path)
+
+    def remove_outputs(self, subfolders: Sequence[str], force: bool = False) -> list[Path]:
+        """Remove the files pointtraj wrote in ``subfolders`` (e.g. ``["state", "clouds"]``).
+
+        A file is pointtraj's when the manifest lists it. In a work folder of an older version
+        (``work.toml`` but no manifest), when its name is one pointtraj gives there
+        (:data:`OWN_NAMES`). Other files are kept and named in a warning; a subfolder is removed
+        only when it ends up empty.
+
+        Parameters
+        ----------
+        subfolders : sequence of str
+        force : bool
+            In a folder with no pointtraj mark, remove the files named as pointtraj names them
+            (each folder and count is logged); without it such a folder is refused.
+
+        Returns
+        -------
+        list of pathlib.Path
+            The files removed.
+
+        Raises
+        ------
+        WorkFolderError
+            If the subfolders hold files and the folder has no pointtraj mark, and not ``force``.
+        """
+        present = [self.path / s for s in subfolders if (self.path / s).is_dir()]
+        files = [p for d in present for p in sorted(d.rglob("*")) if p.is_file()]
+        if not files:
+            return []
+        if self.manifest.is_file():
+            owned = self.owned()
+            mine = [p for p in files if p.resolve() in owned]
+        elif self.work_toml.is_file() or force:
+            mine = [
+                p
+                for p in files
+                if p.parent.name in OWN_NAMES and OWN_NAMES[p.parent.name].match(p.name)
+            ]
+            if not self.work_toml.is_file():
+                logger.warning(
+                    "--force-folder: removing %d files named as pointtraj's in %s",
+                    len(mine),
+                    ", ".join(str(d) for d in present),
+                )
+        else:
+            raise WorkFolderError(
+                f"{self.path}: {', '.join(p.name + '/' for p in present)} hold files that "
+                "pointtraj did not record writing (no work.toml, no manifest); refusing to "
+                "remove them. Use another work folder, or pass --force-folder to remove the "
+                "files named as pointtraj names them"
+            )
+        for p in mine:
+            p.unlink(missing_ok=True)
+        kept = sorted(set(files) - set(mine))
+        if kept:
+            logger.warning(
+                "%s: kept %d files that pointtraj did not write: %s",
+                self.path,
+                len(kept),
+                ", ".join(str(p.relative_to(self.path)) for p in kept[:5])
+                + (", ..." if len(kept) > 5 else ""),
+            )
+        for d in present:
+            for sub in sorted((q for q in d.rglob("*") if q.is_dir()), reverse=True) + [d]:
+                with contextlib.suppress(OSError):
+                    sub.rmdir()  # only when empty
+        logger.info("%s: removed %d files of the previous run", self.path, len(mine))
+        return mine
+
+    @contextlib.contextmanager
+    def lock(self, command: str = "pointtraj") -> Iterator[WorkFolder]:
+        """Hold the folder for this process: one pointtraj run at a time writes into it.
+
+        On entry (outermost only; the lock is re-entrant within a process) the folder is
+        created, stale temporary files of killed runs are removed, and every file written
+        below it is recorded in the manifest until exit. The lock is an ``flock`` on
+        ``.pointtraj/lock``, so the OS releases it when a process dies.
+
+        Parameters
+        ----------
+        command : str
+            Named to a second run that finds the folder held.
+
+        Raises
+        ------
+        WorkFolderError
+            If another process holds the folder (naming its pid, host and command).
+        """
+        from .atomic import remove_stale_temporaries
+
+        key = self.path.resolve()
+        with _held_lock:
+            if key in _held:
+                _held[key][1] += 1
+                reentered = True
+            else:
+                reentered = False
+        if reentered:
+            try:
+                yield self
+            finally:
+                with _held_lock:
+                    _held[key][1] -= 1
+            return
+        try:
+            self.lock_file.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.lock_file, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as exc:
+            raise WorkFolderError(
+                f"{self.lock_file}: cannot create the work folder's lock ({exc.strerror or exc})"
+            ) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _describe_holder(fd)
+            os.close(fd)
+            raise WorkFolderError(
+                f"{self.path}: in use by {holder}; wait for it to finish or stop it"
+            ) from None
+        try:
+            info = {
+                "pid": os.getpid(),
+                "host": socket.gethostname(),
+                "command": command,
+                "since": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            }
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, (json.dumps(info) + "\n").encode(), 0)
+            with _held_lock:
+                _held[key] = [fd, 1]
+            stale = remove_stale_temporaries(self.path)
+            if stale:
+                logger.info(
+                    "%s: removed %d temporary files of an interrupted run", self.path, len(stale)
+                )
+            if self.labels_pending.exists():
+                logger.warning(
+                    "%s: an interrupted `label` run left clouds/ partly relabelled; run "
+                    "`pointtraj label` again",
+                    self.path,
+                )
+            with self._recording():
+                yield self
+        finally:
+            with _held_lock:
+                _held.pop(key, None)
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, 0)
+            os.close(fd)
+
+    @contextlib.contextmanager
+    def _recording(self) -> Iterator[None]:
+        """Append every file installed below the folder to the manifest."""
+        from .atomic import owner
+
+        root = self.path.resolve()
+        known = {str(p.relative_to(root)) for p in self.owned()}
+        handle = open(self.manifest, "a", encoding="utf-8")
+        guard = threading.Lock()
+
+        def record(path: Path) -> None:
+            rel = str(path.relative_to(root))
+            with guard:
+                if rel not in known and not rel.startswith(_OWN_DIR):
+                    known.add(rel)
+                    handle.write(rel + "\n")
+                    handle.flush()
+
+        try:
+            with owner(root, record):
+                yield
+        finally:
+            handle.close()
+
     def check_capture(self, capture: str | os.PathLike) -> None:
         """Raise if ``work.toml`` records a capture other than ``capture``.
 
@@ -258,3 +520,32 @@ class WorkFolder:
                 f"{self.work_toml}: records capture {recorded}, not {Path(capture).resolve()}; "
                 "use another work folder"
             )
+
+
+def locked(command: str) -> Callable[[F], F]:
+    """Decorate a stage function whose first argument is the work folder: run it under the
+    folder's lock (:meth:`WorkFolder.lock`)."""
+
+    def decorate(fn: F) -> F:
+        @functools.wraps(fn)
+        def wrapper(work: str | os.PathLike, *args: Any, **kwargs: Any) -> Any:
+            with WorkFolder(work).lock(command):
+                return fn(work, *args, **kwargs)
+
+        return wrapper  # type: ignore[return-value]
+
+    return decorate
+
+
+def _describe_holder(fd: int) -> str:
+    """Who holds a lock file, from what it wrote there."""
+    try:
+        info = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
+    except (OSError, ValueError):
+        info = {}
+    if not info:
+        return "another pointtraj run"
+    return (
+        f"`{info.get('command', 'pointtraj')}` (pid {info.get('pid', '?')} on "
+        f"{info.get('host', '?')}, since {info.get('since', '?')})"
+    )

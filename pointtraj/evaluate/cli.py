@@ -35,7 +35,7 @@ def evaluate(work: Path, capture: Path | None, config_path: Path | None, **optio
     validity on held-out cameras) and, on synthetic captures, the ground-truth metrics.
     """
     from ..affinity_cli import _config_from
-    from ..pipeline_cli import ProgressBars
+    from ..cli_common import ProgressBars
     from ..stages import SemanticsStageConfig
     from .study import EvaluateConfig, evaluate_work, headline
 

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FileFormatError, ValidationError
-from ..workdir import WorkFolder
+from ..workdir import WorkFolder, locked
 from . import paper
 from .report import (
     Section,
@@ -544,6 +544,7 @@ def _timing_section(wf: WorkFolder, metrics: dict) -> Section:
     )
 
 
+@locked("pointtraj evaluate")
 def evaluate_work(
     work: str | os.PathLike,
     config: EvaluateConfig | None = None,

@@ -3,49 +3,13 @@
 from __future__ import annotations
 
 import logging
-import sys
-import tomllib
 from pathlib import Path
 
 import click
 
-from ..errors import PointtrajError
-
-__all__ = ["reconstruct", "parse_frames", "load_reconstruct_config"]
+__all__ = ["reconstruct", "load_reconstruct_config"]
 
 logger = logging.getLogger(__name__)
-
-
-def parse_frames(text: str | None, num_frames: int) -> range:
-    """Parse ``A:B`` (Python slice syntax, B exclusive, either side optional) into a range.
-
-    Examples
-    --------
-    >>> parse_frames("2:5", 10)
-    range(2, 5)
-    >>> parse_frames(":-2", 10)
-    range(0, 8)
-    >>> parse_frames(None, 4)
-    range(0, 4)
-    """
-    if text is None:
-        return range(num_frames)
-    parts = text.split(":")
-    if len(parts) != 2:
-        raise click.BadParameter(f"expected A:B, got {text!r}", param_hint="--frames")
-    try:
-        a = int(parts[0]) if parts[0].strip() else None
-        b = int(parts[1]) if parts[1].strip() else None
-    except ValueError:
-        raise click.BadParameter(
-            f"expected integers A:B, got {text!r}", param_hint="--frames"
-        ) from None
-    r = range(num_frames)[slice(a, b)]
-    if len(r) == 0:
-        raise click.BadParameter(
-            f"{text!r} selects no frame of the capture's {num_frames}", param_hint="--frames"
-        )
-    return r
 
 
 def load_reconstruct_config(path: str | Path | None):
@@ -67,51 +31,6 @@ def load_reconstruct_config(path: str | Path | None):
         raise FileFormatError(path, str(exc)) from None
 
 
-def _work_toml(capture_path: Path, frames: range, config) -> str:
-    from ..config import to_mapping
-
-    lines = [
-        "# pointtraj work folder (see data_specs/work_folder.md)",
-        f'capture = "{_toml_escape(str(capture_path))}"',
-        "",
-        "[reconstruct_run]",
-        f"frames = [{frames.start}, {frames.stop}]",
-        "",
-    ]
-    lines += _toml_tables("reconstruct", to_mapping(config))
-    return "\n".join(lines) + "\n"
-
-
-def _toml_escape(s: str) -> str:
-    return s.replace("\\", "\\\\").replace('"', '\\"')
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(v)
-    if isinstance(v, str):
-        return f'"{_toml_escape(v)}"'
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {v!r} to TOML")
-
-
-def _toml_tables(name: str, mapping: dict) -> list[str]:
-    lines = [f"[{name}]"]
-    subs = []
-    for k, v in mapping.items():
-        if isinstance(v, dict):
-            subs.append((k, v))
-        else:
-            lines.append(f"{k} = {_toml_value(v)}")
-    lines.append("")
-    for k, v in subs:
-        lines += _toml_tables(f"{name}.{k}", v)
-    return lines
-
-
 @click.command("reconstruct")
 @click.argument("capture", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option(
@@ -129,52 +48,46 @@ def _toml_tables(name: str, mapping: dict) -> list[str]:
     default=None,
     help="TOML with a [reconstruct] table (see ReconstructConfig).",
 )
-@click.option("--restart", is_flag=True, help="Ignore and overwrite a previous run's state.")
+@click.option(
+    "--restart", is_flag=True, help="Discard a previous run's state and clouds instead of resuming."
+)
+@click.option(
+    "--force-folder",
+    is_flag=True,
+    help="Use --out even if it is a non-empty folder that pointtraj did not make (the files "
+    "removed are logged).",
+)
 def reconstruct(
-    capture: Path, work: Path, frames: str | None, config_path: Path | None, restart: bool
+    capture: Path,
+    work: Path,
+    frames: str | None,
+    config_path: Path | None,
+    restart: bool,
+    force_folder: bool,
 ) -> None:
     """Reconstruct dense 3D trajectories of CAPTURE into the work folder --out.
 
     Writes WORK/work.toml, WORK/clouds/<frame>.ply per frame, WORK/state/ (resume points) and
-    WORK/trajectories.npz.
+    WORK/trajectories.npz. A restart removes only the files pointtraj wrote there.
     """
-    import shutil
+    from ..cli_common import cli_errors, progress_bars
+    from ..errors import ValidationError
+    from ..stages import reconstruct_work
 
-    from ..atomic import write_text_atomic
-    from ..session import Capture
-    from .track import reconstruct_capture
-
-    try:
+    with cli_errors(), progress_bars() as bars:
         cfg = load_reconstruct_config(config_path)
-        cap = Capture.open(capture)
-        rng = parse_frames(frames, int(cap.num_frames))
-        text = _work_toml(capture.resolve(), rng, cfg)
-        toml_path = work / "work.toml"
-        if toml_path.is_file() and (work / "state").is_dir() and not restart:
-            old = toml_path.read_text(encoding="utf-8")
-            if _run_identity(old) != _run_identity(text):
-                raise click.ClickException(
-                    f"{work} holds a run with another capture, frames or parameters; "
-                    "use --restart to overwrite it or another --out"
-                )
-        if restart:
-            for sub in ("state", "clouds"):
-                if (work / sub).is_dir():
-                    shutil.rmtree(work / sub)
-        work.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(toml_path, text)
-        with click.progressbar(
-            length=len(rng), label="reconstruct", show_pos=True, file=sys.stderr
-        ) as bar:
-            traj = reconstruct_capture(cap, work, rng, cfg, on_frame=lambda rec: bar.update(1))
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
-    except OSError as exc:
-        raise click.ClickException(f"{exc.filename or work}: {exc.strerror or exc}") from None
-    lengths = traj.lengths
+        try:
+            traj = reconstruct_work(
+                work, capture, cfg, frames, restart=restart, force=force_folder, progress=bars
+            )
+        except ValidationError as exc:
+            if str(exc).startswith("frames:"):
+                raise click.BadParameter(str(exc)[7:].strip(), param_hint="--frames") from None
+            raise
+    first = int(traj.first_frame.min()) if traj.num_trajectories else 0
     click.echo(
         f"{traj.num_trajectories} trajectories, {traj.num_point_frames} point-frames over "
-        f"{len(rng)} frames (median length {float(_median(lengths)):.0f}) -> {work}"
+        f"frames {first}:{traj.num_frames} (median length {_median(traj.lengths):.0f}) -> {work}"
     )
 
 
@@ -182,11 +95,3 @@ def _median(a) -> float:
     import numpy as np
 
     return float(np.median(a)) if len(a) else 0.0
-
-
-def _run_identity(text: str) -> dict:
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError:
-        return {}
-    return {k: data.get(k) for k in ("capture", "reconstruct_run", "reconstruct")}

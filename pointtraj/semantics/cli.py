@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import tomllib
 from pathlib import Path
@@ -33,43 +32,19 @@ def _read_work_capture(work: Path) -> Path | None:
 
 
 def write_gt_trajectories(capture: Path, work: Path, min_visible: int = 2) -> Path:
-    """Write ``WORK/trajectories.npz`` (and ``work.toml``) from a synthetic capture's ground truth.
-
-    Parameters
-    ----------
-    capture : pathlib.Path
-        Synthetic capture folder with ``gt/``.
-    work : pathlib.Path
-        Work folder (created if needed).
-    min_visible : int
-        Keep point-frames seen by at least this many cameras.
+    """Write a synthetic capture's ground truth as ``WORK/trajectories.npz``
+    (:func:`pointtraj.stages.ground_truth_work`).
 
     Returns
     -------
     pathlib.Path
         The written ``trajectories.npz``.
-
-    Raises
-    ------
-    PointtrajError
-        If the ground truth cannot be read, or ``work.toml`` names another capture.
     """
-    from ..atomic import write_text_atomic
-    from ..synth.groundtruth import load_ground_truth
+    from ..stages import ground_truth_work
+    from ..workdir import WorkFolder
 
-    capture = capture.resolve()
-    recorded = _read_work_capture(work)
-    if recorded is not None and recorded.resolve() != capture:
-        raise PointtrajError(f"{work / 'work.toml'}: records capture {recorded}, not {capture}")
-    gt = load_ground_truth(capture)
-    trajectories = gt.to_trajectories(min_visible=min_visible)
-    work.mkdir(parents=True, exist_ok=True)
-    out = work / "trajectories.npz"
-    trajectories.save(out)
-    if recorded is None:
-        write_text_atomic(work / "work.toml", f"capture = {json.dumps(str(capture))}\n")
-    logger.info("wrote %d ground-truth trajectories to %s", len(trajectories), out)
-    return out
+    ground_truth_work(work, capture, min_visible)
+    return WorkFolder(work).trajectories
 
 
 def _parse_options(options: tuple[str, ...]) -> dict[str, Any]:
@@ -165,13 +140,11 @@ def semantics(
     from_ground_truth: bool,
 ) -> None:
     """Build WORK/semantic_map.npz: recognise every image, view-pool, average over time."""
-    from ..labelset import LabelSet
-    from ..session import Capture
-    from ..trajectories import Trajectories
-    from .recognizers import make_recognizer
-    from .semantic_map import SemanticsConfig, build_semantic_map
+    from ..cli_common import cli_errors
+    from ..stages import SemanticsStageConfig, semantics_work
+    from .semantic_map import SemanticsConfig
 
-    try:
+    with cli_errors():
         capture = capture or _read_work_capture(work)
         if capture is None:
             raise click.UsageError(f"{work}: no work.toml recording the capture; pass --capture")
@@ -183,28 +156,15 @@ def semantics(
                     "for a synthetic capture)"
                 )
             write_gt_trajectories(capture, work)
-        cap = Capture.open(capture)
-        labels = LabelSet.load(cap.labels_path) if cap.labels_path else LabelSet.default()
-        if cap.labels_path is None:
-            logger.warning("%s has no labels.toml; using the default label set", capture)
-        kwargs = _parse_options(options)
-        if recognizer_name in ("simulated",):
-            kwargs.setdefault("capture", str(Path(capture).resolve()))
-        try:
-            recognizer = make_recognizer(recognizer_name, labels, **kwargs)
-        except TypeError as exc:  # an option the recogniser does not take
-            raise click.UsageError(f"--recognizer {recognizer_name}: {exc}") from None
-        trajectories = Trajectories.load(traj_path)
-        config = SemanticsConfig(
-            **({"poolings": tuple(poolings)} if poolings else {}),
+        config = SemanticsStageConfig(
+            recognizer=recognizer_name,
+            options=_parse_options(options),
+            poolings=tuple(poolings) or SemanticsConfig().poolings,
             **({"eps_e": eps_e} if eps_e is not None else {}),
             **({"background_vote": background_vote} if background_vote is not None else {}),
         )
-        smap = build_semantic_map(cap, trajectories, recognizer, config=config, progress=True)
+        smap = semantics_work(work, config, capture, progress=lambda *a: None)
         out = work / "semantic_map.npz"
-        smap.save(out)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
     p = smap.poolings[0]
     seen = int((smap.count[p] > 0).sum())
     click.echo(

@@ -1,0 +1,82 @@
+"""What every ``pointtraj`` command shares: one-line errors and progress bars.
+
+Library code reports progress through a ``progress(label, done, total)`` callable and raises
+:class:`~pointtraj.errors.PointtrajError`; the commands turn both into what a terminal user
+expects with :func:`cli_errors` and :class:`ProgressBars`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import sys
+from collections.abc import Iterator
+
+import click
+
+from .errors import PointtrajError
+
+__all__ = ["ProgressBars", "cli_errors", "progress_bars", "os_error_message"]
+
+
+class ProgressBars:
+    """A ``progress(label, done, total)`` callable that shows one click progress bar per step.
+
+    A new label closes the previous bar and opens a new one; :meth:`close` ends the last.
+    """
+
+    def __init__(self) -> None:
+        self._bar = None
+        self._label: str | None = None
+        self._done = 0
+
+    def __call__(self, label: str, done: int, total: int) -> None:
+        if label != self._label or self._bar is None:
+            self.close()
+            self._bar = click.progressbar(
+                length=max(int(total), 1), label=f"  {label}", show_pos=True, file=sys.stderr
+            )
+            self._bar.__enter__()
+            self._label, self._done = label, 0
+        step = int(done) - self._done
+        if step > 0:
+            self._bar.update(step)
+            self._done = int(done)
+
+    def close(self) -> None:
+        """Finish the bar on screen, if any."""
+        if self._bar is not None:
+            self._bar.__exit__(None, None, None)
+        self._bar, self._label = None, None
+
+
+@contextlib.contextmanager
+def progress_bars() -> Iterator[ProgressBars]:
+    """A :class:`ProgressBars` closed on exit."""
+    bars = ProgressBars()
+    try:
+        yield bars
+    finally:
+        bars.close()
+
+
+def os_error_message(exc: OSError, default_path: object = None) -> str:
+    """One line for an OS error: the full path, then what went wrong."""
+    where = exc.filename if exc.filename is not None else default_path
+    what = {
+        errno.ENOSPC: "the disk is full",
+        errno.EROFS: "the file system is read-only",
+        errno.EACCES: "permission denied",
+    }.get(exc.errno, exc.strerror or str(exc))
+    return f"{where}: {what}" if where is not None else what
+
+
+@contextlib.contextmanager
+def cli_errors(default_path: object = None) -> Iterator[None]:
+    """Turn pointtraj's errors and OS errors into one-line click errors (exit code 1)."""
+    try:
+        yield
+    except PointtrajError as exc:
+        raise click.ClickException(str(exc)) from None
+    except OSError as exc:
+        raise click.ClickException(os_error_message(exc, default_path)) from None
