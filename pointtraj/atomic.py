@@ -296,12 +296,12 @@ def atomic_path(
             yield tmp_path
         except OSError as exc:
             raise _failed(path, f"cannot write ({_describe(exc)})") from None
+        except WriteError as exc:  # a writer that reports its own failure
+            raise _failed(path, exc.message) from None
         if verify:
             problem = verify_file(tmp_path, suffix)
             if problem is not None:
-                free = _free_bytes(path.parent)
-                hint = " (is the disk full?)" if free is not None and free < (64 << 20) else ""
-                raise _failed(path, f"incomplete output: {problem}{hint}")
+                raise _failed(path, f"incomplete output: {problem}")
         try:
             # mkstemp makes the file private (0600); give it the permissions of a plain new file.
             os.chmod(tmp_path, 0o666 & ~_UMASK)
@@ -318,7 +318,11 @@ def atomic_path(
 
 
 def _failed(path: Path, message: str) -> WriteError:
-    """The error for a failed write of ``path``, saying whether an older file survives."""
+    """The error for a failed write of ``path``: why, whether the disk is (nearly) full, and
+    whether an older file survives."""
+    free = _free_bytes(path.parent)
+    if free is not None and free < (16 << 20) and "disk is full" not in message:
+        message += f" (the disk is nearly full: {free // 1024} KiB free)"
     kept = "; the previous file is kept" if path.exists() else ""
     return WriteError(path, message + kept)
 

@@ -40,7 +40,7 @@ import numpy as np
 
 from .atomic import atomic_path, write_text_atomic
 from .camera import Camera, CameraRig
-from .errors import FileFormatError, ValidationError
+from .errors import FileFormatError, ValidationError, WriteError
 from .trajectories import Trajectories
 from .workdir import WorkFolder, locked
 
@@ -790,7 +790,7 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
 
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), np.ascontiguousarray(image[..., ::-1])):
-            raise OSError(f"{path}: OpenCV could not write the PNG")
+            raise WriteError(path, "OpenCV could not write the PNG")
 
 
 def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float = 30.0) -> int:
@@ -821,7 +821,7 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: floa
                     h, w = img.shape[:2]
                     writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
                     if not writer.isOpened():
-                        raise OSError(f"{path}: OpenCV cannot open an mp4v video writer")
+                        raise WriteError(path, "OpenCV cannot open an mp4v video writer")
                 writer.write(np.ascontiguousarray(img[..., ::-1]))
                 n += 1
         finally:
@@ -1334,7 +1334,7 @@ def render_work(
     work = Path(work)
     scene = _load_scene(work, cfg)
     wf = WorkFolder(work)
-    owned = wf.owned() if wf.manifest.is_file() else None
+    owned = wf.owned() if wf.has_manifest() else None
     traj, capture = scene.trajectories, scene.capture
     rig = capture.rig if capture is not None else None
     frames = _resolve_frames(cfg.frames, traj, cfg.stride)

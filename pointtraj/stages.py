@@ -242,9 +242,11 @@ def reconstruct_work(
     wf = WorkFolder(work)
     cap = Capture.open(capture)
     rng = frames if isinstance(frames, range) else parse_frames(frames, int(cap.num_frames))
+    foreign = not wf.is_pointtraj()
     wf.claim(force)
     with wf.lock("pointtraj reconstruct"):
         has_run = wf.state.is_dir() or wf.clouds.is_dir()
+        restart = restart or (foreign and has_run)  # taken over with force: nothing to resume
         if has_run and not restart:
             wanted = {"reconstruct_run": None, "reconstruct": None} | wf.run_document(
                 capture, rng, cfg

@@ -288,12 +288,18 @@ class WorkFolder:
         return self.path / _OWN_DIR / "labels-pending"
 
     def is_pointtraj(self) -> bool:
-        """Whether the folder holds pointtraj's marks (its own folder, ``work.toml``, a pipeline
-        record or a trajectory store)."""
-        return any(
-            p.exists()
-            for p in (self.path / _OWN_DIR, self.work_toml, self.pipeline_state, self.trajectories)
+        """Whether the folder holds pointtraj's marks (a manifest that records something,
+        ``work.toml``, a pipeline record or a trajectory store)."""
+        return self.has_manifest() or any(
+            p.exists() for p in (self.work_toml, self.pipeline_state, self.trajectories)
         )
+
+    def has_manifest(self) -> bool:
+        """Whether the manifest records anything (a lock alone leaves an empty one)."""
+        try:
+            return self.manifest.stat().st_size > 0
+        except OSError:
+            return False
 
     def owned(self) -> set[Path]:
         """The files the manifest lists that still exist (absolute paths)."""
@@ -361,7 +367,7 @@ class WorkFolder:
         files = [p for d in present for p in sorted(d.rglob("*")) if p.is_file()]
         if not files:
             return []
-        if self.manifest.is_file():
+        if self.has_manifest():
             owned = self.owned()
             mine = [p for p in files if p.resolve() in owned]
         elif self.work_toml.is_file() or force:
@@ -441,7 +447,7 @@ class WorkFolder:
             fd = os.open(self.lock_file, os.O_RDWR | os.O_CREAT, 0o666)
         except OSError as exc:
             raise WorkFolderError(
-                f"{self.lock_file}: cannot create the work folder's lock ({exc.strerror or exc})"
+                f"{self.path}: cannot write into the work folder ({(exc.strerror or str(exc)).lower()})"
             ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -458,8 +464,9 @@ class WorkFolder:
                 "command": command,
                 "since": time.strftime("%Y-%m-%dT%H:%M:%S"),
             }
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, (json.dumps(info) + "\n").encode(), 0)
+            with contextlib.suppress(OSError):  # on a full disk the lock holds without its note
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, (json.dumps(info) + "\n").encode(), 0)
             with _held_lock:
                 _held[key] = [fd, 1]
             stale = remove_stale_temporaries(self.path)
@@ -495,16 +502,22 @@ class WorkFolder:
         def record(path: Path) -> None:
             rel = str(path.relative_to(root))
             with guard:
-                if rel not in known and not rel.startswith(_OWN_DIR):
-                    known.add(rel)
+                if rel in known or rel.startswith(_OWN_DIR):
+                    return
+                known.add(rel)
+                try:
                     handle.write(rel + "\n")
                     handle.flush()
+                except OSError as exc:
+                    # The file is installed; unrecorded, a restart keeps it (the safe side).
+                    logger.warning("%s: cannot record %s (%s)", self.manifest, rel, exc.strerror)
 
         try:
             with owner(root, record):
                 yield
         finally:
-            handle.close()
+            with contextlib.suppress(OSError):
+                handle.close()
 
     def check_capture(self, capture: str | os.PathLike) -> None:
         """Raise if ``work.toml`` records a capture other than ``capture``.
