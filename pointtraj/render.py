@@ -1104,14 +1104,11 @@ def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
     labels, names, source = None, [], ""
     labels_path, smap_path = work / "labels.npz", work / "semantic_map.npz"
     if cfg.colors in ("auto", "labels") and labels_path.is_file():
-        try:
-            with np.load(labels_path, allow_pickle=False) as z:
-                labels = np.asarray(z["labels"], np.int64)
-                names = [str(s) for s in z["class_names"]]
-        except KeyError as exc:
-            raise FileFormatError(labels_path, f"missing array {exc}") from None
-        except (OSError, ValueError) as exc:
-            raise FileFormatError(labels_path, f"unreadable: {exc}") from None
+        from .npzfile import load_npz
+
+        z = load_npz(labels_path, ("labels", "class_names"), "a labels file")
+        labels = np.asarray(z["labels"], np.int64)
+        names = [str(s) for s in z["class_names"]]
         source = "labels.npz"
         inputs.append(labels_path)
     elif cfg.colors == "labels":

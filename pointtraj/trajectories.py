@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import os
-import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -400,20 +399,10 @@ class Trajectories:
         FileFormatError
             If the file is missing, not an npz, lacks a field or is inconsistent.
         """
+        from .npzfile import load_npz
+
         path = Path(path)
-        if not path.is_file():
-            raise FileFormatError(path, "no such file")
-        try:
-            # Open the file ourselves: np.load(path) leaks it when the zip is corrupt.
-            with open(path, "rb") as f:
-                z = np.load(f, allow_pickle=False)
-                if not isinstance(z, np.lib.npyio.NpzFile):
-                    raise ValueError("a single .npy array, not an .npz archive")
-                with z:
-                    data = {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise FileFormatError(path, f"not a readable .npz file ({exc})") from None
-        need = [
+        need = (
             "first_frame",
             "offsets",
             "xyz",
@@ -421,10 +410,8 @@ class Trajectories:
             "reprojection_error",
             "color",
             "camera_names",
-        ]
-        missing = [k for k in need if k not in data]
-        if missing:
-            raise FileFormatError(path, f"missing field(s) {', '.join(missing)}")
+        )
+        data = load_npz(path, need, "a trajectory store")
         version = int(data.get("format_version", FORMAT_VERSION))
         if version > FORMAT_VERSION:
             raise FileFormatError(

@@ -401,17 +401,10 @@ class SemanticMap:
         FileFormatError
             Missing file, missing array, wrong version or inconsistent shapes (naming the array).
         """
+        from ..npzfile import load_npz
+
         path = Path(path)
-        if not path.is_file():
-            raise FileFormatError(path, "no such file")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise FileFormatError(path, f"unreadable: {exc}") from None
-        for key in ("format_version", "class_names", "poolings"):
-            if key not in arrays:
-                raise FileFormatError(path, f"missing array {key!r}")
+        arrays = load_npz(path, ("format_version", "class_names", "poolings"), "a semantic map")
         if int(arrays["format_version"]) != FORMAT_VERSION:
             raise FileFormatError(
                 path, f"format_version {int(arrays['format_version'])} (expected {FORMAT_VERSION})"

@@ -1,0 +1,118 @@
+"""Issue #16: bad input is a one-line error naming the file and the problem, never a traceback.
+
+Every case runs the real ``pointtraj`` command on a real (tiny, synthetic) capture and work
+folder that one pipeline run builds for the module; each test damages a copy.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from pointtraj.cli import main
+from pointtraj.pipeline import load_pipeline, run_pipeline
+
+TINY = """
+name = "tiny"
+capture = "cap"
+work = "work"
+
+[synth]
+preset = "tiny4"
+frames = 3
+points_per_part = 40
+
+[semantics]
+recognizer = "simulated"
+options = { noise = "low" }
+
+[affinity]
+tau = 0.02
+
+[render]
+size = [320, 256]
+tail = 2
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> tuple[Path, Path]:
+    """(capture, work) of one tiny pipeline run, shared by the module: copy before damaging."""
+    tmp = tmp_path_factory.mktemp("bad_input")
+    (tmp / "pipe.toml").write_text(TINY, encoding="utf-8")
+    config = load_pipeline(tmp / "pipe.toml", base=tmp)
+    run_pipeline(config)
+    return config.capture, config.work
+
+
+@pytest.fixture
+def copies(tiny, tmp_path) -> tuple[Path, Path]:
+    """A private copy of the tiny capture and of its work folder (recording the copy)."""
+    cap = tmp_path / "cap"
+    work = tmp_path / "work"
+    shutil.copytree(tiny[0], cap, symlinks=True)
+    shutil.copytree(tiny[1], work, symlinks=True)
+    text = (work / "work.toml").read_text(encoding="utf-8")
+    (work / "work.toml").write_text(text.replace(str(tiny[0].resolve()), str(cap)), "utf-8")
+    return cap, work
+
+
+def fails(args: list[str], *names: str) -> str:
+    """Run ``pointtraj ARGS``; assert it fails with one ``Error:`` line containing ``names``.
+
+    Returns
+    -------
+    str
+        The error line, without ``Error: ``.
+    """
+    res = CliRunner().invoke(main, [str(a) for a in args])
+    out = res.output
+    assert res.exit_code == 1, out
+    assert "Traceback" not in out, out
+    assert isinstance(res.exception, SystemExit), repr(res.exception)
+    errors = [line for line in out.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1, out
+    message = errors[0][len("Error: ") :]
+    # The message is the whole error: nothing of it spills onto further lines.
+    tail = out[out.index("Error:") :].strip()
+    assert tail == errors[0], out
+    for name in names:
+        assert name in message, message
+    return message
+
+
+def truncate(path: Path, fraction: float) -> None:
+    """Keep the first ``fraction`` of a file's bytes."""
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * fraction)])
+
+
+# -- 1. one loader for every npz ---------------------------------------------------------------
+def test_truncated_semantic_map(copies):
+    _, work = copies
+    truncate(work / "semantic_map.npz", 0.5)
+    fails(["label", str(work)], str(work / "semantic_map.npz"), "truncated or corrupt")
+
+
+def test_truncated_affinity(copies):
+    _, work = copies
+    truncate(work / "affinity.npz", 0.5)
+    fails(["label", str(work)], str(work / "affinity.npz"), "truncated or corrupt")
+
+
+def test_truncated_labels(copies):
+    _, work = copies
+    truncate(work / "labels.npz", 0.5)
+    fails(["render", str(work)], str(work / "labels.npz"), "truncated or corrupt")
+
+
+def test_npz_missing_array(copies):
+    _, work = copies
+    data = dict(np.load(work / "affinity.npz"))
+    del data["weight"]
+    np.savez(work / "affinity.npz", **data)
+    fails(["label", str(work)], str(work / "affinity.npz"), "missing array 'weight'")
