@@ -43,6 +43,33 @@ def dequantize_visibility(q: np.ndarray) -> np.ndarray:
     return np.asarray(q, dtype=np.float32) * np.float32(1.0 / 255.0)
 
 
+def _check_finite_xyz(path: Path, xyz: np.ndarray) -> None:
+    """Refuse NaN or infinite positions: every row of the ragged store is a live point-frame.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The store, for the message.
+    xyz : (P, 3) ndarray
+        Positions as read.
+
+    Raises
+    ------
+    FileFormatError
+        Naming the file and the number of non-finite point-frames.
+    """
+    if not np.issubdtype(xyz.dtype, np.number) or xyz.ndim != 2:
+        return  # the shape and type checks of the constructor name the problem
+    bad = ~np.isfinite(xyz).all(axis=1)  # (P,)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise FileFormatError(
+            path,
+            f"xyz: {int(bad.sum())} of {len(xyz)} point-frames are NaN or infinite (first at "
+            f"row {first}); every point-frame of the store is a live point",
+        )
+
+
 @dataclass(frozen=True)
 class FrameSlice:
     """The point-frames of one frame.
@@ -418,6 +445,7 @@ class Trajectories:
                 path,
                 f"format_version {version} is newer than this pointtraj reads ({FORMAT_VERSION})",
             )
+        _check_finite_xyz(path, data["xyz"])
         try:
             return cls(
                 first_frame=data["first_frame"],

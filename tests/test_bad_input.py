@@ -116,3 +116,15 @@ def test_npz_missing_array(copies):
     del data["weight"]
     np.savez(work / "affinity.npz", **data)
     fails(["label", str(work)], str(work / "affinity.npz"), "missing array 'weight'")
+
+
+# -- 2. non-finite coordinates -------------------------------------------------------------------
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_non_finite_xyz(copies, value):
+    _, work = copies
+    data = dict(np.load(work / "trajectories.npz"))
+    data["xyz"][[3, 7]] = value
+    np.savez(work / "trajectories.npz", **data)
+    for args in (["affinity", work], ["semantics", work, "-r", "simulated"]):
+        message = fails(args, str(work / "trajectories.npz"))
+        assert f"xyz: 2 of {len(data['xyz'])} point-frames are NaN or infinite" in message
