@@ -128,3 +128,19 @@ def test_non_finite_xyz(copies, value):
     for args in (["affinity", work], ["semantics", work, "-r", "simulated"]):
         message = fails(args, str(work / "trajectories.npz"))
         assert f"xyz: 2 of {len(data['xyz'])} point-frames are NaN or infinite" in message
+
+
+# -- 3. out-of-range frame selections ------------------------------------------------------------
+def test_frames_out_of_range_on_the_command_line(copies, tmp_path):
+    cap, _ = copies
+    message = fails(["reconstruct", cap, "--out", tmp_path / "w", "--frames", "0:100"], "--frames")
+    assert "'0:100' ends at frame 100, but the capture has 3 frames" in message
+    assert not (tmp_path / "w" / "trajectories.npz").exists()
+
+
+def test_frames_out_of_range_in_a_pipeline_file(copies, tmp_path):
+    cap, _ = copies
+    pipe = tmp_path / "frames.toml"
+    pipe.write_text(f'capture = "{cap}"\nwork = "{tmp_path / "w"}"\nframes = "5:"\n', "utf-8")
+    message = fails(["run", pipe], f"{pipe}: frames")
+    assert "'5:' starts at frame 5, but the capture has 3 frames" in message

@@ -10,42 +10,11 @@ from pathlib import Path
 import click
 
 from ..errors import PointtrajError
+from ..workdir import parse_frames
 
 __all__ = ["reconstruct", "parse_frames", "load_reconstruct_config"]
 
 logger = logging.getLogger(__name__)
-
-
-def parse_frames(text: str | None, num_frames: int) -> range:
-    """Parse ``A:B`` (Python slice syntax, B exclusive, either side optional) into a range.
-
-    Examples
-    --------
-    >>> parse_frames("2:5", 10)
-    range(2, 5)
-    >>> parse_frames(":-2", 10)
-    range(0, 8)
-    >>> parse_frames(None, 4)
-    range(0, 4)
-    """
-    if text is None:
-        return range(num_frames)
-    parts = text.split(":")
-    if len(parts) != 2:
-        raise click.BadParameter(f"expected A:B, got {text!r}", param_hint="--frames")
-    try:
-        a = int(parts[0]) if parts[0].strip() else None
-        b = int(parts[1]) if parts[1].strip() else None
-    except ValueError:
-        raise click.BadParameter(
-            f"expected integers A:B, got {text!r}", param_hint="--frames"
-        ) from None
-    r = range(num_frames)[slice(a, b)]
-    if len(r) == 0:
-        raise click.BadParameter(
-            f"{text!r} selects no frame of the capture's {num_frames}", param_hint="--frames"
-        )
-    return r
 
 
 def load_reconstruct_config(path: str | Path | None):
@@ -147,7 +116,7 @@ def reconstruct(
     try:
         cfg = load_reconstruct_config(config_path)
         cap = Capture.open(capture)
-        rng = parse_frames(frames, int(cap.num_frames))
+        rng = parse_frames(frames, int(cap.num_frames), where="--frames")
         text = _work_toml(capture.resolve(), rng, cfg)
         toml_path = work / "work.toml"
         if toml_path.is_file() and (work / "state").is_dir() and not restart:
