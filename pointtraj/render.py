@@ -773,14 +773,11 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
     Raises
     ------
     FileFormatError
-        If the file is missing or cannot be decoded.
+        If the file is missing, truncated or cannot be decoded (:func:`pointtraj.images.read_rgb`).
     """
-    import cv2
+    from .images import read_rgb
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise FileFormatError(path, "cannot read the image")
-    return np.ascontiguousarray(img[..., ::-1])
+    return read_rgb(path)
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:

@@ -44,13 +44,11 @@ _INT_NAME = re.compile(r"^-?\d+$")
 
 
 def _read_image(path: Path, camera: str, frame: int) -> np.ndarray:
-    """(H, W, 3) uint8 RGB image of a file, or a FileFormatError naming camera and frame."""
-    import cv2
+    """(H, W, 3) uint8 RGB image of a file, or a FileFormatError naming camera and frame
+    (:func:`pointtraj.images.read_rgb`: truncated JPEGs and PNGs included)."""
+    from .images import read_rgb
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise FileFormatError(path, f"camera {camera!r} frame {frame}: unreadable or corrupt image")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return read_rgb(path, f"camera {camera!r} frame {frame}")
 
 
 class _ImageFolder:

@@ -144,3 +144,19 @@ def test_frames_out_of_range_in_a_pipeline_file(copies, tmp_path):
     pipe.write_text(f'capture = "{cap}"\nwork = "{tmp_path / "w"}"\nframes = "5:"\n', "utf-8")
     message = fails(["run", pipe], f"{pipe}: frames")
     assert "'5:' starts at frame 5, but the capture has 3 frames" in message
+
+
+# -- 4. images must decode completely ------------------------------------------------------------
+@pytest.mark.parametrize("image_format", ["jpg", "png"])
+def test_truncated_image(copies, tmp_path, image_format):
+    import cv2
+
+    cap, _ = copies
+    image = cap / "frames" / "cam02" / "000001.jpg"
+    if image_format == "png":  # the same frame as a PNG
+        cv2.imwrite(str(image.with_suffix(".png")), cv2.imread(str(image)))
+        image.unlink()
+        image = image.with_suffix(".png")
+    truncate(image, 0.05)
+    message = fails(["reconstruct", cap, "--out", tmp_path / "w"], str(image))
+    assert "camera 'cam02' frame 1: truncated" in message
