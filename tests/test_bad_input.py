@@ -160,3 +160,21 @@ def test_truncated_image(copies, tmp_path, image_format):
     truncate(image, 0.05)
     message = fails(["reconstruct", cap, "--out", tmp_path / "w"], str(image))
     assert "camera 'cam02' frame 1: truncated" in message
+
+
+# -- 5. duplicate camera sources -----------------------------------------------------------------
+@pytest.mark.parametrize("link", ["folder", "files"])
+def test_duplicate_camera_source(copies, tmp_path, link):
+    cap, _ = copies
+    cam3, cam2 = cap / "frames" / "cam03", cap / "frames" / "cam02"
+    shutil.rmtree(cam3)
+    if link == "folder":
+        cam3.symlink_to(cam2, target_is_directory=True)
+        shared = cam2
+    else:
+        cam3.mkdir()
+        for f in sorted(cam2.iterdir()):
+            (cam3 / f.name).symlink_to(f)
+        shared = cam2 / "000000.jpg"
+    message = fails(["reconstruct", cap, "--out", tmp_path / "w"], str(cap), "'cam02'", "'cam03'")
+    assert f"read the same frames ({shared.resolve()})" in message
