@@ -85,8 +85,6 @@ def read_rgb(path: str | os.PathLike, context: str = "") -> np.ndarray:
     prefix = f"{context}: " if context else ""
     try:
         data = path.read_bytes()
-    except FileNotFoundError:
-        raise FileFormatError(path, f"{prefix}no such image file") from None
     except OSError as exc:
         raise FileFormatError(path, f"{prefix}cannot read: {exc.strerror or exc}") from None
     problem = truncation_problem(data)

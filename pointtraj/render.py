@@ -1074,7 +1074,7 @@ class _Scene:
 
 def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
     from .config import load_toml
-    from .labelset import LabelSet
+    from .labelset import LabelSet, check_class_names
     from .session import Capture
 
     if not work.is_dir():
@@ -1095,6 +1095,8 @@ def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
             except FileFormatError as exc:
                 problem = f"cannot open the capture: {exc}"
                 logger.warning("%s", problem)
+    if capture is not None:
+        traj.check_cameras(capture, traj_path)
     else:
         problem = f"{work / 'work.toml'} does not exist"
 
@@ -1137,6 +1139,9 @@ def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
     label_set = None
     if capture is not None and capture.labels_path is not None:
         label_set = LabelSet.load(capture.labels_path)
+        if source != "grey":
+            made = labels_path if source == "labels.npz" else smap_path
+            check_class_names(capture.labels_path, label_set.names, made, names)
         inputs.append(capture.labels_path)
     palette = class_palette(names, label_set)
     drawn = traj.lengths >= cfg.min_length  # (M,)

@@ -15,7 +15,7 @@ import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -460,6 +460,31 @@ class Trajectories:
             )
         except ValidationError as exc:
             raise FileFormatError(path, str(exc)) from None
+
+    def check_cameras(self, capture: Any, path: str | os.PathLike) -> None:
+        """Refuse a capture whose cameras are not this store's (a work folder of another rig).
+
+        Parameters
+        ----------
+        capture : Capture
+            Has ``path`` and ``camera_names``.
+        path : path-like
+            This store's file, for the message.
+
+        Raises
+        ------
+        FileFormatError
+            Naming the store, the capture and both camera lists.
+        """
+        ours, theirs = list(self.camera_names), list(capture.camera_names)
+        if sorted(ours) == sorted(theirs):
+            return
+        raise FileFormatError(
+            path,
+            f"its {len(ours)} cameras ({', '.join(ours)}) are not the {len(theirs)} cameras of "
+            f"capture {capture.path} ({', '.join(theirs)}): the work folder belongs to another "
+            "rig or capture",
+        )
 
     @staticmethod
     def concatenate(parts: list[Trajectories]) -> Trajectories:

@@ -178,3 +178,55 @@ def test_duplicate_camera_source(copies, tmp_path, link):
         shared = cam2 / "000000.jpg"
     message = fails(["reconstruct", cap, "--out", tmp_path / "w"], str(cap), "'cam02'", "'cam03'")
     assert f"read the same frames ({shared.resolve()})" in message
+
+
+# -- 6. a work folder of one rig against another capture -----------------------------------------
+@pytest.fixture
+def eight_cameras(copies, tmp_path) -> Path:
+    """The tiny 4-camera capture grown to 8 cameras (cam04..cam07 copy cam00..cam03)."""
+    cap, _ = copies
+    big = tmp_path / "cap8"
+    shutil.copytree(cap, big)
+    rig = (big / "rig.toml").read_text(encoding="utf-8")
+    extra = []
+    for i in range(4):
+        shutil.copytree(big / "frames" / f"cam0{i}", big / "frames" / f"cam0{i + 4}")
+        block = rig.split(f"[cam_{i}]")[1].split("\n[cam_")[0]
+        extra.append(f"[cam_{i + 4}]" + block.replace(f'"cam0{i}"', f'"cam0{i + 4}"'))
+    (big / "rig.toml").write_text(rig.rstrip() + "\n\n" + "\n".join(extra), encoding="utf-8")
+    return big
+
+
+@pytest.mark.parametrize("stage", ["evaluate", "semantics", "render"])
+def test_work_folder_of_another_rig(copies, eight_cameras, stage):
+    _, work = copies
+    shutil.rmtree(work / "report")
+    if stage == "render":  # render takes the capture that work.toml records
+        text = (work / "work.toml").read_text(encoding="utf-8")
+        capture = text.split('capture = "')[1].split('"')[0]
+        (work / "work.toml").write_text(text.replace(capture, str(eight_cameras)), "utf-8")
+        args = ["render", work]
+    else:
+        args = [stage, work, "--capture", eight_cameras]
+        args += ["-r", "simulated"] if stage == "semantics" else []
+    message = fails(args, str(work / "trajectories.npz"), str(eight_cameras))
+    assert "its 4 cameras (cam00, cam01, cam02, cam03) are not the 8 cameras" in message
+    assert not (work / "report" / "index.md").exists()
+
+
+# -- 7. labels.toml changed after the semantic map ------------------------------------------------
+def _swap_two_classes(cap: Path) -> None:
+    text = (cap / "labels.toml").read_text(encoding="utf-8")
+    text = text.replace('"left_upper_arm"', '"TMP"').replace(
+        '"right_upper_arm"', '"left_upper_arm"'
+    )
+    (cap / "labels.toml").write_text(text.replace('"TMP"', '"right_upper_arm"'), "utf-8")
+
+
+@pytest.mark.parametrize("stage", ["label", "evaluate", "render"])
+def test_labels_toml_with_swapped_classes(copies, stage):
+    cap, work = copies
+    _swap_two_classes(cap)
+    made = "labels.npz" if stage == "render" else "semantic_map.npz"
+    message = fails([stage, work], str(cap / "labels.toml"), str(work / made))
+    assert "class 2 is 'right_upper_arm', but 'left_upper_arm' in" in message

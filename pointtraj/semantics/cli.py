@@ -195,6 +195,7 @@ def semantics(
         except TypeError as exc:  # an option the recogniser does not take
             raise click.UsageError(f"--recognizer {recognizer_name}: {exc}") from None
         trajectories = Trajectories.load(traj_path)
+        trajectories.check_cameras(cap, traj_path)
         config = SemanticsConfig(
             **({"poolings": tuple(poolings)} if poolings else {}),
             **({"eps_e": eps_e} if eps_e is not None else {}),
