@@ -43,6 +43,49 @@ def dequantize_visibility(q: np.ndarray) -> np.ndarray:
     return np.asarray(q, dtype=np.float32) * np.float32(1.0 / 255.0)
 
 
+def _empty_ply_header(pcd: o3d.t.geometry.PointCloud) -> str:
+    """A binary PLY with no vertex and the point attributes of ``pcd`` (as Open3D names them)."""
+    lines = ["ply", "format binary_little_endian 1.0", "comment Created by pointtraj"]
+    lines.append("element vertex 0")
+    present = list(pcd.point)
+    first = [k for k in ("positions", "colors") if k in present]
+    for key in first + sorted(k for k in present if k not in first):
+        tensor = pcd.point[key]
+        kind = "float" if "Float" in str(tensor.dtype) else "int"
+        if key == "positions":
+            names = ["x", "y", "z"]
+        elif key == "colors":
+            names = ["red", "green", "blue"]
+        else:
+            width = int(tensor.shape[1]) if len(tensor.shape) > 1 else 1
+            names = [key] if width == 1 else [f"{key}_{i}" for i in range(width)]
+        lines += [f"property {kind} {n}" for n in names]
+    return "\n".join([*lines, "end_header"]) + "\n"
+
+
+def write_cloud_ply(path: str | os.PathLike, pcd: o3d.t.geometry.PointCloud) -> None:
+    """Write a point cloud as PLY, atomically; a cloud without points too (Open3D refuses it).
+
+    Parameters
+    ----------
+    path : path-like
+    pcd : open3d.t.geometry.PointCloud
+        Its attributes become PLY properties (``visibility`` (N, C) as ``visibility_0`` ...).
+
+    Raises
+    ------
+    FileFormatError
+        If Open3D cannot write the file.
+    """
+    import open3d as o3d
+
+    with atomic_path(path) as tmp:
+        if len(pcd.point.positions) == 0:
+            tmp.write_text(_empty_ply_header(pcd), encoding="ascii")
+        elif not o3d.t.io.write_point_cloud(str(tmp), pcd):
+            raise FileFormatError(path, "Open3D failed to write the point cloud")
+
+
 def _check_finite_xyz(path: Path, xyz: np.ndarray) -> None:
     """Refuse NaN or infinite positions: every row of the ragged store is a live point-frame.
 
@@ -396,9 +439,7 @@ class Trajectories:
         pcd = self.to_pointcloud(t, **kwargs)
         # PLY has no 64-bit integers: Open3D refuses to write an Int64 attribute.
         pcd.point.track_id = pcd.point.track_id.to(o3d.core.Dtype.Int32)
-        with atomic_path(path) as tmp:
-            if not o3d.t.io.write_point_cloud(str(tmp), pcd):
-                raise FileFormatError(path, "Open3D failed to write the point cloud")
+        write_cloud_ply(path, pcd)
 
     # -- files -------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:

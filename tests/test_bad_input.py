@@ -230,3 +230,37 @@ def test_labels_toml_with_swapped_classes(copies, stage):
     made = "labels.npz" if stage == "render" else "semantic_map.npz"
     message = fails([stage, work], str(cap / "labels.toml"), str(work / made))
     assert "class 2 is 'right_upper_arm', but 'left_upper_arm' in" in message
+
+
+# -- 8. a frame without points; a one-camera capture ---------------------------------------------
+def test_black_frame_does_not_abort_the_reconstruction(copies, tmp_path, caplog):
+    import cv2
+    import open3d as o3d
+
+    cap, _ = copies
+    for image in (cap / "frames").glob("*/000001.jpg"):
+        cv2.imwrite(str(image), np.zeros((256, 320, 3), np.uint8))
+    work = tmp_path / "w"
+    with caplog.at_level("WARNING", logger="pointtraj"):
+        res = CliRunner().invoke(main, ["reconstruct", str(cap), "--out", str(work)])
+    assert res.exit_code == 0, res.output
+    assert "frame 1: no point reconstructed" in caplog.text
+    empty = o3d.t.io.read_point_cloud(str(work / "clouds" / "000001.ply"))
+    assert empty.point.positions.shape[0] == 0 and "track_id" in empty.point
+    assert (work / "trajectories.npz").is_file()
+    # The later stages go on too; label rewrites every cloud, the empty one included.
+    for args in (["semantics", work, "-r", "simulated"], ["affinity", work], ["label", work]):
+        res = CliRunner().invoke(main, [str(a) for a in args])
+        assert res.exit_code == 0, res.output
+    empty = o3d.t.io.read_point_cloud(str(work / "clouds" / "000001.ply"))
+    assert empty.point.positions.shape[0] == 0 and "label" in empty.point
+
+
+def test_one_camera_capture(copies, tmp_path):
+    cap, _ = copies
+    rig = (cap / "rig.toml").read_text(encoding="utf-8")
+    (cap / "rig.toml").write_text(rig.split("\n[cam_1]")[0] + "\n", encoding="utf-8")
+    for name in ("cam01", "cam02", "cam03"):
+        shutil.rmtree(cap / "frames" / name)
+    message = fails(["reconstruct", cap, "--out", tmp_path / "w"], str(cap))
+    assert "reconstruction needs at least 2 cameras; the capture has 1 (cam00)" in message
