@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from .errors import PointtrajError
+from .errors import PointtrajError, os_error_message
 
 __all__ = ["run", "demo", "ProgressBars"]
 
@@ -68,9 +68,7 @@ def run_and_report(config, force: tuple[str, ...] = ()):
     except PointtrajError as exc:
         raise click.ClickException(str(exc)) from None
     except OSError as exc:
-        raise click.ClickException(
-            f"{exc.filename or config.work}: {exc.strerror or exc}"
-        ) from None
+        raise click.ClickException(os_error_message(exc, config.work)) from None
     finally:
         bars.close()
 

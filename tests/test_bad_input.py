@@ -264,3 +264,34 @@ def test_one_camera_capture(copies, tmp_path):
         shutil.rmtree(cap / "frames" / name)
     message = fails(["reconstruct", cap, "--out", tmp_path / "w"], str(cap))
     assert "reconstruction needs at least 2 cameras; the capture has 1 (cam00)" in message
+
+
+# -- 9. messages that name the right key and the full path ---------------------------------------
+def test_eps_e_out_of_range_names_eps_e(tmp_path):
+    pipe = tmp_path / "eps.toml"
+    pipe.write_text('capture = "c"\nwork = "w"\n[semantics]\neps_e = 1.5\n', encoding="utf-8")
+    message = fails(["run", pipe], str(pipe), "eps_e: must be in [0, 1), got 1.5")
+    assert "unobserved_visibility" not in message
+
+
+def test_label_map_beyond_labels_toml_names_the_map(copies):
+    cap, work = copies
+    text = (cap / "labels.toml").read_text(encoding="utf-8")
+    (cap / "labels.toml").write_text("[[classes]]".join(text.split("[[classes]]")[:3]), "utf-8")
+    label_map = cap / "gt" / "labels" / "cam00" / "000000.png"
+    message = fails(["semantics", work, "-r", "simulated"], str(label_map))
+    assert "label_map: class indices must be in -1..1" in message
+    assert "(labels.toml has 2 classes)" in message
+
+
+def test_write_error_names_the_full_destination(copies, tmp_path):
+    """An OS error while writing names the file (not the atomic write's temporary)."""
+    cap, _ = copies
+    work = tmp_path / "w"
+    res = CliRunner().invoke(main, ["reconstruct", str(cap), "--out", str(work)])
+    assert res.exit_code == 0, res.output
+    (work / "state" / "000002.npz").unlink()
+    (work / "state" / "000002.npz").mkdir()  # where frame 2's state must go
+    (work / "state" / "000002.npz" / "keep").write_text("x")
+    message = fails(["reconstruct", cap, "--out", work], f"{work / 'state' / '000002.npz'}: ")
+    assert "/." not in message  # no temporary file

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from ..errors import PointtrajError
+from ..errors import PointtrajError, os_error_message
 from ..workdir import parse_frames
 
 __all__ = ["reconstruct", "parse_frames", "load_reconstruct_config"]
@@ -139,7 +139,7 @@ def reconstruct(
     except PointtrajError as exc:
         raise click.ClickException(str(exc)) from None
     except OSError as exc:
-        raise click.ClickException(f"{exc.filename or work}: {exc.strerror or exc}") from None
+        raise click.ClickException(os_error_message(exc, work)) from None
     lengths = traj.lengths
     click.echo(
         f"{traj.num_trajectories} trajectories, {traj.num_point_frames} point-frames over "

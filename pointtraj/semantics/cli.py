@@ -10,7 +10,7 @@ from typing import Any
 
 import click
 
-from ..errors import PointtrajError
+from ..errors import PointtrajError, os_error_message
 
 __all__ = ["semantics", "gt_trajectories", "write_gt_trajectories"]
 
@@ -206,6 +206,8 @@ def semantics(
         smap.save(out)
     except PointtrajError as exc:
         raise click.ClickException(str(exc)) from None
+    except OSError as exc:  # a read-only or full disk: name the file
+        raise click.ClickException(os_error_message(exc, work)) from None
     p = smap.poolings[0]
     seen = int((smap.count[p] > 0).sum())
     click.echo(

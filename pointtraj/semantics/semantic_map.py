@@ -116,6 +116,8 @@ class SemanticsConfig:
     def __post_init__(self) -> None:
         if self.visibility not in ("geometric", "observed"):
             raise ValidationError(f"visibility: 'geometric' or 'observed', got {self.visibility!r}")
+        if not 0.0 <= self.eps_e < 1.0:  # first: unobserved_visibility's range depends on it
+            raise ValidationError(f"eps_e: must be in [0, 1), got {self.eps_e}")
         if not self.eps_e < self.unobserved_visibility <= 1.0:
             raise ValidationError(
                 f"unobserved_visibility: must be in (eps_e, 1], got {self.unobserved_visibility}"
@@ -124,8 +126,6 @@ class SemanticsConfig:
             raise ValidationError(f"background_vote: must be in [0, 1], got {self.background_vote}")
         if not (self.occlusion_depth_m > 0 and self.occlusion_cell_px > 0):
             raise ValidationError("occlusion_depth_m and occlusion_cell_px must be > 0")
-        if not 0.0 <= self.eps_e < 1.0:
-            raise ValidationError(f"eps_e: must be in [0, 1), got {self.eps_e}")
         if not self.poolings:
             raise ValidationError("poolings: need at least one pooling method")
         for p in self.poolings:
