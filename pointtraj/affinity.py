@@ -887,17 +887,10 @@ def load_affinity(path: str | os.PathLike) -> AffinityGraph:
     FileFormatError
         If the file is missing, unreadable, lacks a field or is inconsistent.
     """
+    from .npzfile import load_npz
+
     path = Path(path)
-    if not path.is_file():
-        raise FileFormatError(path, "no such file")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise FileFormatError(path, f"not a readable .npz file ({exc})") from None
-    missing = [k for k in ("row", "col", "weight", "shape") if k not in data]
-    if missing:
-        raise FileFormatError(path, f"missing field(s) {', '.join(missing)}")
+    data = load_npz(path, ("row", "col", "weight", "shape"), "an affinity graph")
     if int(data.get("format_version", FORMAT_VERSION)) > FORMAT_VERSION:
         raise FileFormatError(path, "format_version is newer than this pointtraj reads")
     try:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .errors import PointtrajError
+from .errors import PointtrajError, os_error_message
 
 __all__ = ["affinity", "label"]
 
@@ -58,6 +58,8 @@ def affinity(work: Path, config_path: Path | None, **options) -> None:
         graph = affinity_work(work, cfg, progress=bars)
     except PointtrajError as exc:
         raise click.ClickException(str(exc)) from None
+    except OSError as exc:  # a read-only or full disk: name the file
+        raise click.ClickException(os_error_message(exc, work)) from None
     finally:
         bars.close()
     click.echo(
@@ -94,6 +96,8 @@ def label(work: Path, no_clouds: bool, config_path: Path | None, **options) -> N
         res = label_work(work, cfg, progress=bars)
     except PointtrajError as exc:
         raise click.ClickException(str(exc)) from None
+    except OSError as exc:  # a read-only or full disk: name the file
+        raise click.ClickException(os_error_message(exc, work)) from None
     finally:
         bars.close()
     changed = int((res.labels != res.argmax).sum())

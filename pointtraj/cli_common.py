@@ -8,15 +8,15 @@ expects with :func:`cli_errors` and :class:`ProgressBars`.
 from __future__ import annotations
 
 import contextlib
-import errno
+import os
 import sys
 from collections.abc import Iterator
 
 import click
 
-from .errors import PointtrajError
+from .errors import PointtrajError, os_error_message
 
-__all__ = ["ProgressBars", "cli_errors", "progress_bars", "os_error_message"]
+__all__ = ["ProgressBars", "cli_errors", "progress_bars"]
 
 
 class ProgressBars:
@@ -60,20 +60,11 @@ def progress_bars() -> Iterator[ProgressBars]:
         bars.close()
 
 
-def os_error_message(exc: OSError, default_path: object = None) -> str:
-    """One line for an OS error: the full path, then what went wrong."""
-    where = exc.filename if exc.filename is not None else default_path
-    what = {
-        errno.ENOSPC: "the disk is full",
-        errno.EROFS: "the file system is read-only",
-        errno.EACCES: "permission denied",
-    }.get(exc.errno, exc.strerror or str(exc))
-    return f"{where}: {what}" if where is not None else what
-
-
 @contextlib.contextmanager
-def cli_errors(default_path: object = None) -> Iterator[None]:
-    """Turn pointtraj's errors and OS errors into one-line click errors (exit code 1)."""
+def cli_errors(default_path: str | os.PathLike = ".") -> Iterator[None]:
+    """Turn pointtraj's errors and OS errors into one-line click errors (exit code 1).
+
+    ``default_path`` is named for an OS error that carries no file name."""
     try:
         yield
     except PointtrajError as exc:

@@ -121,7 +121,7 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "config") -
     ------
     ValueError
         Naming the key: unknown keys (with the valid ones listed), wrong types, missing
-        required fields.
+        required fields. Fields with ``metadata={"internal": True}`` are not keys.
 
     Examples
     --------
@@ -140,7 +140,9 @@ def from_mapping(cls: type[T], data: Mapping[str, Any], where: str = "config") -
     if not dataclasses.is_dataclass(cls):
         raise TypeError(f"{cls!r} is not a dataclass")
     hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    fields = {
+        f.name: f for f in dataclasses.fields(cls) if f.init and not f.metadata.get("internal")
+    }
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise ValueError(

@@ -7,8 +7,10 @@ the field (:class:`FileFormatError`).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from os import PathLike
+from pathlib import Path
 
 import numpy as np
 
@@ -19,7 +21,11 @@ __all__ = [
     "WriteError",
     "WorkFolderError",
     "check_array",
+    "os_error_message",
 ]
+
+#: A temporary file of :func:`pointtraj.atomic.atomic_path`: ``.<name>.<8 random chars><suffix>``.
+_ATOMIC_TEMPORARY = re.compile(r"^\.(?:ptmp\.)?(?P<name>.+)\.[a-z0-9_]{8}(\.[^.]*)?$")
 
 
 class PointtrajError(Exception):
@@ -123,3 +129,32 @@ def check_array(
     if finite and not np.all(np.isfinite(arr)):
         raise ValidationError(f"{name}: contains NaN or infinite values")
     return arr
+
+
+def os_error_message(exc: OSError, fallback: str | PathLike) -> str:
+    """A one-line message for an operating-system error, naming the full path of the file.
+
+    The file an atomic write was writing is named, not its temporary
+    (``/w/state/000002.npz``, not ``/w/state/.000002.npz.k2j4x9_a.npz``).
+
+    Parameters
+    ----------
+    exc : OSError
+    fallback : path-like
+        Named when the error carries no file name (e.g. the work folder).
+
+    Returns
+    -------
+    str
+        ``"<absolute path>: <reason>"``.
+
+    Examples
+    --------
+    >>> os_error_message(OSError(30, "Read-only file system", "/w/state/.000002.npz.k2j4x9_a.npz"), "/w")
+    '/w/state/000002.npz: Read-only file system'
+    """
+    path = Path(exc.filename if exc.filename else fallback)
+    match = _ATOMIC_TEMPORARY.match(path.name)
+    if match:
+        path = path.with_name(match["name"])
+    return f"{path.absolute()}: {exc.strerror or exc}"

@@ -42,6 +42,7 @@ import numpy as np
 from .atomic import write_text_atomic
 from .camera import Camera, CameraRig
 from .errors import FileFormatError, PointtrajError, ValidationError
+from .images import read_rgb
 
 __all__ = [
     "EXAMPLES",
@@ -555,15 +556,6 @@ def _first_frame(path: Path) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
-def _read_rgb(path: Path) -> np.ndarray:
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise FileFormatError(path, "unreadable image")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-
-
 # -- pose2sim -------------------------------------------------------------------------------
 
 
@@ -754,7 +746,7 @@ def fetch_pose2sim(
                 fixed.append(cam)
                 continue
             ref_path = src / "extrinsics" / f"{cam.name}_ext.png"
-            ref = _read_rgb(ref_path) if ref_path.is_file() else None
+            ref = read_rgb(ref_path) if ref_path.is_file() else None
             if ref is not None and tuple(ref.shape[1::-1]) != tuple(cam.size):
                 ref = None
             mapping, why = choose_image_mapping(cam.name, cam.size, _first_frame(vpath), ref)

@@ -121,17 +121,15 @@ def load_labels(path: str | os.PathLike) -> TrajectoryLabels:
     FileFormatError
         Missing file, missing array, other format version or inconsistent shapes.
     """
+    from .npzfile import load_npz
+
     path = Path(path)
-    if not path.is_file():
-        raise FileFormatError(path, "no such file (run `pointtraj label` first)")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise FileFormatError(path, f"unreadable: {exc}") from None
-    for key in ("format_version", "labels", "class_names"):
-        if key not in arrays:
-            raise FileFormatError(path, f"missing array {key!r}")
+    arrays = load_npz(
+        path,
+        ("format_version", "labels", "class_names"),
+        "a labels file",
+        hint="run `pointtraj label` first",
+    )
     if int(arrays["format_version"]) != FORMAT_VERSION:
         raise FileFormatError(
             path, f"format_version {int(arrays['format_version'])} (expected {FORMAT_VERSION})"

@@ -369,6 +369,48 @@ def _toml_value(value: Any) -> str:
     raise ValidationError(f"cannot write {value!r} to TOML")
 
 
+def check_class_names(
+    labels_toml: str | os.PathLike,
+    expected: Sequence[str],
+    other: str | os.PathLike,
+    names: Sequence[str],
+) -> None:
+    """Refuse a file whose classes (names or order) are not those of ``labels.toml``.
+
+    A label is a class index, so a ``labels.toml`` edited after a stage ran (two names
+    swapped, a class added) would silently rename that stage's labels.
+
+    Parameters
+    ----------
+    labels_toml : path-like
+        The capture's label set file.
+    expected : sequence of str
+        Its class names, in class-index order.
+    other : path-like
+        The file made with a label set (``semantic_map.npz``, ``labels.npz``).
+    names : sequence of str
+        That file's class names.
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``labels.toml``, the other file and the first class that differs.
+    """
+    expected, names = [str(n) for n in expected], [str(n) for n in names]
+    if expected == names:
+        return
+    if len(expected) != len(names):
+        what = f"has {len(expected)} classes, {other} {len(names)}"
+    else:
+        k = next(i for i, (a, b) in enumerate(zip(expected, names)) if a != b)
+        what = f"class {k} is {expected[k]!r}, but {names[k]!r} in {other}"
+    raise FileFormatError(
+        labels_toml,
+        f"{what}: the classes changed after {Path(other).name} was made "
+        "(restore labels.toml or rerun the stages from `pointtraj semantics`)",
+    )
+
+
 def load_labelset(path: str | os.PathLike) -> LabelSet:
     """Read ``labels.toml`` (same as :meth:`LabelSet.load`)."""
     return LabelSet.load(path)

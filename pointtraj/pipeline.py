@@ -117,6 +117,8 @@ class PipelineConfig:
     label : LabelStageConfig
     evaluate : EvaluateConfig
     render : RenderConfig
+    source : pathlib.Path or None
+        The pipeline file it was read from (not a key), for messages.
     """
 
     capture: Path
@@ -134,6 +136,9 @@ class PipelineConfig:
     label: LabelStageConfig = field(default_factory=LabelStageConfig)
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
+    source: Path | None = field(
+        default=None, compare=False, repr=False, metadata={"internal": True}
+    )
 
     def __post_init__(self) -> None:
         unknown = [s for s in self.stages if s not in STAGES]
@@ -152,6 +157,19 @@ class PipelineConfig:
                 f"label.pooling {self.label.pooling!r} is not among semantics.poolings "
                 f"({', '.join(self.semantics.poolings)})"
             )
+
+    def frame_range(self, num_frames: int) -> range:
+        """The frames to reconstruct of a capture of ``num_frames``.
+
+        Raises
+        ------
+        ValidationError
+            Naming the pipeline file (when known) if ``frames`` lies outside the capture.
+        """
+        from .workdir import parse_frames
+
+        where = "frames" if self.source is None else f"{self.source}: frames"
+        return parse_frames(self.frames, num_frames, where=where)
 
     def with_paths(
         self, capture: str | os.PathLike | None = None, work: str | os.PathLike | None = None
@@ -194,6 +212,7 @@ def load_pipeline(path: str | os.PathLike, base: str | os.PathLike | None = None
     except (ValueError, TypeError) as exc:
         raise FileFormatError(path, str(exc)) from None
     root = Path(base) if base is not None else Path.cwd()
+    config = dataclasses.replace(config, source=path)
     return config.with_paths(root / config.capture, root / config.work)
 
 
@@ -429,12 +448,13 @@ def _fetch_example(name: str, capture: Path) -> None:
 def _reconstruct(config: PipelineConfig, progress: Progress | None, force: bool) -> None:
     """Reconstruct, resuming an interrupted run of the same settings, else starting afresh."""
     from . import stages
+    from .session import Capture
 
     stages.reconstruct_work(
         config.work,
         config.capture,
         config.reconstruct,
-        config.frames,
+        config.frame_range(Capture.open(config.capture).num_frames),
         on_change="restart",
         force=force,
         progress=progress,

@@ -774,14 +774,11 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
     Raises
     ------
     FileFormatError
-        If the file is missing or cannot be decoded.
+        If the file is missing, truncated or cannot be decoded (:func:`pointtraj.images.read_rgb`).
     """
-    import cv2
+    from .images import read_rgb
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise FileFormatError(path, "cannot read the image")
-    return np.ascontiguousarray(img[..., ::-1])
+    return read_rgb(path)
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
@@ -1078,7 +1075,7 @@ class _Scene:
 
 def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
     from .config import load_toml
-    from .labelset import LabelSet
+    from .labelset import LabelSet, check_class_names
     from .session import Capture
 
     if not work.is_dir():
@@ -1099,20 +1096,19 @@ def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
             except FileFormatError as exc:
                 problem = f"cannot open the capture: {exc}"
                 logger.warning("%s", problem)
+    if capture is not None:
+        traj.check_cameras(capture, traj_path)
     else:
         problem = f"{work / 'work.toml'} does not exist"
 
     labels, names, source = None, [], ""
     labels_path, smap_path = work / "labels.npz", work / "semantic_map.npz"
     if cfg.colors in ("auto", "labels") and labels_path.is_file():
-        try:
-            with np.load(labels_path, allow_pickle=False) as z:
-                labels = np.asarray(z["labels"], np.int64)
-                names = [str(s) for s in z["class_names"]]
-        except KeyError as exc:
-            raise FileFormatError(labels_path, f"missing array {exc}") from None
-        except (OSError, ValueError) as exc:
-            raise FileFormatError(labels_path, f"unreadable: {exc}") from None
+        from .npzfile import load_npz
+
+        z = load_npz(labels_path, ("labels", "class_names"), "a labels file")
+        labels = np.asarray(z["labels"], np.int64)
+        names = [str(s) for s in z["class_names"]]
         source = "labels.npz"
         inputs.append(labels_path)
     elif cfg.colors == "labels":
@@ -1144,6 +1140,9 @@ def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
     label_set = None
     if capture is not None and capture.labels_path is not None:
         label_set = LabelSet.load(capture.labels_path)
+        if source != "grey":
+            made = labels_path if source == "labels.npz" else smap_path
+            check_class_names(capture.labels_path, label_set.names, made, names)
         inputs.append(capture.labels_path)
     palette = class_palette(names, label_set)
     drawn = traj.lengths >= cfg.min_length  # (M,)

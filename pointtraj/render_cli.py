@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .errors import PointtrajError
+from .errors import PointtrajError, os_error_message
 
 __all__ = ["render", "parse_frame_range", "parse_size"]
 
@@ -143,6 +143,8 @@ def render(
         result = render_work(work, cfg, force=force, progress=progress)
     except PointtrajError as exc:
         raise click.ClickException(str(exc)) from None
+    except OSError as exc:  # a read-only or full disk: name the file
+        raise click.ClickException(os_error_message(exc, work)) from None
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)

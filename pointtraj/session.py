@@ -44,13 +44,11 @@ _INT_NAME = re.compile(r"^-?\d+$")
 
 
 def _read_image(path: Path, camera: str, frame: int) -> np.ndarray:
-    """(H, W, 3) uint8 RGB image of a file, or a FileFormatError naming camera and frame."""
-    import cv2
+    """(H, W, 3) uint8 RGB image of a file, or a FileFormatError naming camera and frame
+    (:func:`pointtraj.images.read_rgb`: truncated JPEGs and PNGs included)."""
+    from .images import read_rgb
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise FileFormatError(path, f"camera {camera!r} frame {frame}: unreadable or corrupt image")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return read_rgb(path, f"camera {camera!r} frame {frame}")
 
 
 class _ImageFolder:
@@ -269,6 +267,7 @@ class Capture:
                 raise FileFormatError(path, msg)
             logger.warning("%s: %s; dropping them from the rig", path, msg)
             rig = rig.subset([n for n in rig.names if n in sources])
+        _check_distinct_sources({n: sources[n] for n in rig.names}, path)
         counts = {n: sources[n].num_frames for n in rig.names}
         empty = [n for n, c in counts.items() if c == 0]
         if empty:
@@ -541,6 +540,37 @@ def _read_capture_toml(path: Path, read_toml: Any) -> dict[str, Any]:
             )
         out["image_format"] = data["image_format"]
     return out
+
+
+def _source_identity(source: _ImageFolder | _Video) -> list[tuple[Path, tuple[int, int]]]:
+    """(resolved path, (device, inode)) of the files a source reads: its video, or the folder
+    and its first image (a symlinked folder, or linked image files, give the same)."""
+    files = [source.path] if isinstance(source, _Video) else [source.folder, *source.files[:1]]
+    out = []
+    for f in files:
+        st = f.stat()
+        out.append((f.resolve(), (st.st_dev, st.st_ino)))
+    return out
+
+
+def _check_distinct_sources(sources: dict[str, _ImageFolder | _Video], path: Path) -> None:
+    """Refuse two cameras that read the same frames (a symlinked or linked folder or video).
+
+    Raises
+    ------
+    FileFormatError
+        Naming the capture, both cameras and the shared path.
+    """
+    seen: dict[tuple[int, int], str] = {}
+    for name, source in sources.items():
+        for resolved, key in _source_identity(source):
+            other = seen.setdefault(key, name)
+            if other != name:
+                raise FileFormatError(
+                    path,
+                    f"cameras {other!r} and {name!r} read the same frames ({resolved}): "
+                    "a duplicated or symlinked camera folder or video",
+                )
 
 
 def _find_sources(path: Path) -> dict[str, _ImageFolder | _Video]:

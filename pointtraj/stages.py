@@ -366,6 +366,7 @@ def semantics_work(
         cap = Capture.open(wf.require_capture(capture))
         recognizer = make_stage_recognizer(cfg, cap)
         trajectories = Trajectories.load(wf.trajectories)
+        trajectories.check_cameras(cap, wf.trajectories)
         smap = build_semantic_map(
             cap,
             trajectories,
@@ -406,6 +407,22 @@ def affinity_work(
         )
         save_affinity(graph, wf.affinity)
     return graph
+
+
+def _check_capture_classes(wf: WorkFolder, path: Path, class_names: tuple[str, ...]) -> None:
+    """Refuse ``path``'s classes if they are not those of the recorded capture's labels.toml.
+
+    Raises
+    ------
+    FileFormatError
+        Naming labels.toml and ``path`` (:func:`pointtraj.labelset.check_class_names`).
+    """
+    from .labelset import LabelSet, check_class_names
+
+    capture = wf.capture_path()
+    labels_toml = None if capture is None else capture / "labels.toml"
+    if labels_toml is not None and labels_toml.is_file():
+        check_class_names(labels_toml, LabelSet.load(labels_toml).names, path, class_names)
 
 
 def label_work(
@@ -449,6 +466,7 @@ def _label_locked(
     if not wf.semantic_map.is_file():
         raise FileFormatError(wf.semantic_map, "no such file (run `pointtraj semantics` first)")
     smap = SemanticMap.load(wf.semantic_map)
+    _check_capture_classes(wf, wf.semantic_map, smap.class_names)
     if cfg.pooling not in smap.L3D:
         raise FileFormatError(
             wf.semantic_map,

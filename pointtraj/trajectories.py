@@ -12,11 +12,10 @@ from __future__ import annotations
 
 import logging
 import os
-import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -42,6 +41,76 @@ def quantize_visibility(v: np.ndarray) -> np.ndarray:
 def dequantize_visibility(q: np.ndarray) -> np.ndarray:
     """uint8 visibility back to float32 probabilities in [0, 1]."""
     return np.asarray(q, dtype=np.float32) * np.float32(1.0 / 255.0)
+
+
+def _empty_ply_header(pcd: o3d.t.geometry.PointCloud) -> str:
+    """A binary PLY with no vertex and the point attributes of ``pcd`` (as Open3D names them)."""
+    lines = ["ply", "format binary_little_endian 1.0", "comment Created by pointtraj"]
+    lines.append("element vertex 0")
+    present = list(pcd.point)
+    first = [k for k in ("positions", "colors") if k in present]
+    for key in first + sorted(k for k in present if k not in first):
+        tensor = pcd.point[key]
+        kind = "float" if "Float" in str(tensor.dtype) else "int"
+        if key == "positions":
+            names = ["x", "y", "z"]
+        elif key == "colors":
+            names = ["red", "green", "blue"]
+        else:
+            width = int(tensor.shape[1]) if len(tensor.shape) > 1 else 1
+            names = [key] if width == 1 else [f"{key}_{i}" for i in range(width)]
+        lines += [f"property {kind} {n}" for n in names]
+    return "\n".join([*lines, "end_header"]) + "\n"
+
+
+def write_cloud_ply(path: str | os.PathLike, pcd: o3d.t.geometry.PointCloud) -> None:
+    """Write a point cloud as PLY, atomically; a cloud without points too (Open3D refuses it).
+
+    Parameters
+    ----------
+    path : path-like
+    pcd : open3d.t.geometry.PointCloud
+        Its attributes become PLY properties (``visibility`` (N, C) as ``visibility_0`` ...).
+
+    Raises
+    ------
+    FileFormatError
+        If Open3D cannot write the file.
+    """
+    import open3d as o3d
+
+    with atomic_path(path) as tmp:
+        if len(pcd.point.positions) == 0:
+            tmp.write_text(_empty_ply_header(pcd), encoding="ascii")
+        elif not o3d.t.io.write_point_cloud(str(tmp), pcd):
+            raise FileFormatError(path, "Open3D failed to write the point cloud")
+
+
+def _check_finite_xyz(path: Path, xyz: np.ndarray) -> None:
+    """Refuse NaN or infinite positions: every row of the ragged store is a live point-frame.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The store, for the message.
+    xyz : (P, 3) ndarray
+        Positions as read.
+
+    Raises
+    ------
+    FileFormatError
+        Naming the file and the number of non-finite point-frames.
+    """
+    if not np.issubdtype(xyz.dtype, np.number) or xyz.ndim != 2:
+        return  # the shape and type checks of the constructor name the problem
+    bad = ~np.isfinite(xyz).all(axis=1)  # (P,)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise FileFormatError(
+            path,
+            f"xyz: {int(bad.sum())} of {len(xyz)} point-frames are NaN or infinite (first at "
+            f"row {first}); every point-frame of the store is a live point",
+        )
 
 
 @dataclass(frozen=True)
@@ -370,9 +439,7 @@ class Trajectories:
         pcd = self.to_pointcloud(t, **kwargs)
         # PLY has no 64-bit integers: Open3D refuses to write an Int64 attribute.
         pcd.point.track_id = pcd.point.track_id.to(o3d.core.Dtype.Int32)
-        with atomic_path(path) as tmp:
-            if not o3d.t.io.write_point_cloud(str(tmp), pcd):
-                raise FileFormatError(path, "Open3D failed to write the point cloud")
+        write_cloud_ply(path, pcd)
 
     # -- files -------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
@@ -400,20 +467,10 @@ class Trajectories:
         FileFormatError
             If the file is missing, not an npz, lacks a field or is inconsistent.
         """
+        from .npzfile import load_npz
+
         path = Path(path)
-        if not path.is_file():
-            raise FileFormatError(path, "no such file")
-        try:
-            # Open the file ourselves: np.load(path) leaks it when the zip is corrupt.
-            with open(path, "rb") as f:
-                z = np.load(f, allow_pickle=False)
-                if not isinstance(z, np.lib.npyio.NpzFile):
-                    raise ValueError("a single .npy array, not an .npz archive")
-                with z:
-                    data = {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise FileFormatError(path, f"not a readable .npz file ({exc})") from None
-        need = [
+        need = (
             "first_frame",
             "offsets",
             "xyz",
@@ -421,16 +478,15 @@ class Trajectories:
             "reprojection_error",
             "color",
             "camera_names",
-        ]
-        missing = [k for k in need if k not in data]
-        if missing:
-            raise FileFormatError(path, f"missing field(s) {', '.join(missing)}")
+        )
+        data = load_npz(path, need, "a trajectory store")
         version = int(data.get("format_version", FORMAT_VERSION))
         if version > FORMAT_VERSION:
             raise FileFormatError(
                 path,
                 f"format_version {version} is newer than this pointtraj reads ({FORMAT_VERSION})",
             )
+        _check_finite_xyz(path, data["xyz"])
         try:
             return cls(
                 first_frame=data["first_frame"],
@@ -445,6 +501,31 @@ class Trajectories:
             )
         except ValidationError as exc:
             raise FileFormatError(path, str(exc)) from None
+
+    def check_cameras(self, capture: Any, path: str | os.PathLike) -> None:
+        """Refuse a capture whose cameras are not this store's (a work folder of another rig).
+
+        Parameters
+        ----------
+        capture : Capture
+            Has ``path`` and ``camera_names``.
+        path : path-like
+            This store's file, for the message.
+
+        Raises
+        ------
+        FileFormatError
+            Naming the store, the capture and both camera lists.
+        """
+        ours, theirs = list(self.camera_names), list(capture.camera_names)
+        if sorted(ours) == sorted(theirs):
+            return
+        raise FileFormatError(
+            path,
+            f"its {len(ours)} cameras ({', '.join(ours)}) are not the {len(theirs)} cameras of "
+            f"capture {capture.path} ({', '.join(theirs)}): the work folder belongs to another "
+            "rig or capture",
+        )
 
     @staticmethod
     def concatenate(parts: list[Trajectories]) -> Trajectories:

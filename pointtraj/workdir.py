@@ -47,8 +47,12 @@ _held: dict[Path, list] = {}
 _held_lock = threading.Lock()
 
 
-def parse_frames(text: str | None, num_frames: int) -> range:
+def parse_frames(text: str | None, num_frames: int, where: str = "frames") -> range:
     """Parse ``A:B`` (Python slice syntax, B exclusive, either side optional) into a range.
+
+    Unlike a Python slice, a start or stop outside the capture is an error rather than clamped
+    (``0:100`` of a 6-frame capture would silently be ``0:6``); negative indices count from the
+    end as usual.
 
     Parameters
     ----------
@@ -56,6 +60,8 @@ def parse_frames(text: str | None, num_frames: int) -> range:
         ``"A:B"``, ``":B"``, ``"A:"``; None selects every frame.
     num_frames : int
         Frames in the capture.
+    where : str
+        Where the text came from, prefixing messages (``"--frames"``, ``"pipe.toml: frames"``).
 
     Returns
     -------
@@ -64,7 +70,8 @@ def parse_frames(text: str | None, num_frames: int) -> range:
     Raises
     ------
     ValidationError
-        If the text is not ``A:B`` with integers, or selects no frame.
+        If the text is not ``A:B`` with integers, A or B lies outside the capture, or it selects
+        no frame.
 
     Examples
     --------
@@ -74,20 +81,35 @@ def parse_frames(text: str | None, num_frames: int) -> range:
     range(0, 8)
     >>> parse_frames(None, 4)
     range(0, 4)
+    >>> parse_frames("0:100", 6)
+    Traceback (most recent call last):
+    ...
+    pointtraj.errors.ValidationError: frames: '0:100' ends at frame 100, but the capture has 6 frames (valid: -6 to 6)
     """
     if text is None:
         return range(num_frames)
     parts = str(text).split(":")
     if len(parts) != 2:
-        raise ValidationError(f"frames: expected A:B, got {text!r}")
+        raise ValidationError(f"{where}: expected A:B, got {text!r}")
     try:
         a = int(parts[0]) if parts[0].strip() else None
         b = int(parts[1]) if parts[1].strip() else None
     except ValueError:
-        raise ValidationError(f"frames: expected integers A:B, got {text!r}") from None
-    r = range(num_frames)[slice(a, b)]
+        raise ValidationError(f"{where}: expected integers A:B, got {text!r}") from None
+    n = int(num_frames)
+    if a is not None and not -n <= a < n:
+        raise ValidationError(
+            f"{where}: {text!r} starts at frame {a}, but the capture has {n} frames "
+            f"(valid: {-n} to {n - 1})"
+        )
+    if b is not None and not -n <= b <= n:
+        raise ValidationError(
+            f"{where}: {text!r} ends at frame {b}, but the capture has {n} frames "
+            f"(valid: {-n} to {n})"
+        )
+    r = range(n)[slice(a, b)]
     if len(r) == 0:
-        raise ValidationError(f"frames: {text!r} selects no frame of the capture's {num_frames}")
+        raise ValidationError(f"{where}: {text!r} selects no frame of the capture's {n}")
     return r
 
 

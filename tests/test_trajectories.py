@@ -110,7 +110,7 @@ def test_load_corrupt_files(store, tmp_path):
     with pytest.raises(FileFormatError, match="no such file"):
         Trajectories.load(tmp_path / "missing.npz")
     np.savez(tmp_path / "partial.npz", xyz=tr.xyz)
-    with pytest.raises(FileFormatError, match="missing field.*first_frame"):
+    with pytest.raises(FileFormatError, match="missing array.*first_frame"):
         Trajectories.load(tmp_path / "partial.npz")
     fields = dict(np.load(good))
     fields["offsets"] = fields["offsets"][::-1]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ..errors import PointtrajError
+from ..errors import PointtrajError, os_error_message
 
 __all__ = ["evaluate"]
 
@@ -51,6 +51,8 @@ def evaluate(work: Path, capture: Path | None, config_path: Path | None, **optio
         metrics = evaluate_work(work, cfg, capture, semantics_config=semantics, progress=bars)
     except PointtrajError as exc:
         raise click.ClickException(str(exc)) from None
+    except OSError as exc:  # a read-only or full disk: name the file
+        raise click.ClickException(os_error_message(exc, work)) from None
     finally:
         bars.close()
     for line in headline(metrics):

@@ -225,6 +225,26 @@ def _load_optional(path: Path, loader, what: str, notes: list[str]):
     return loader(path)
 
 
+def _check_classes(labels_toml: Path, made: list[tuple[Path, Any]]) -> None:
+    """Refuse a semantic map or labels whose classes are not those of the capture's labels.toml.
+
+    Parameters
+    ----------
+    labels_toml : pathlib.Path
+        The capture's label set (nothing is checked without one).
+    made : list of (path, SemanticMap or TrajectoryLabels or None)
+        The loaded files (None: absent).
+    """
+    from ..labelset import LabelSet, check_class_names
+
+    if not labels_toml.is_file():
+        return
+    names = LabelSet.load(labels_toml).names
+    for path, obj in made:
+        if obj is not None:
+            check_class_names(labels_toml, names, path, obj.class_names)
+
+
 def _summary_section(traj, metrics: dict) -> Section:
     lengths = traj.lengths
     frames = len(traj.occupied_frames)  # a reconstruction of frames A:B: only those count
@@ -586,6 +606,7 @@ def evaluate_work(
     from ..affinity import AffinityConfig
     from ..labelfile import load_labels
     from ..semantics.semantic_map import SemanticMap
+    from ..session import Capture
     from ..stages import SemanticsStageConfig
     from ..trajectories import Trajectories
     from .groundtruth import has_ground_truth, true_labels
@@ -598,9 +619,11 @@ def evaluate_work(
     folder = wf.report
     folder.mkdir(parents=True, exist_ok=True)
     traj = Trajectories.load(wf.trajectories)
+    traj.check_cameras(Capture.open(cap), wf.trajectories)
     notes: list[str] = []
     smap = _load_optional(wf.semantic_map, SemanticMap.load, "semantic-map studies", notes)
     labels = _load_optional(wf.labels, load_labels, "graph-cut accuracy", notes)
+    _check_classes(Path(cap) / "labels.toml", [(wf.semantic_map, smap), (wf.labels, labels)])
     for name, obj in (("semantic_map.npz", smap), ("labels.npz", labels)):
         n = None if obj is None else (obj.num_trajectories if name[0] == "s" else len(obj))
         if n is not None and n != traj.num_trajectories:

@@ -26,10 +26,10 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from ..atomic import atomic_path, save_npz_atomic
+from ..atomic import save_npz_atomic
 from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError, check_array
-from ..trajectories import Trajectories, quantize_visibility
+from ..trajectories import Trajectories, quantize_visibility, write_cloud_ply
 from .densify import DensifyConfig
 from .matching import MatchingConfig, MultiViewTracks, match_frame, resolve_ambiguous
 
@@ -1020,9 +1020,7 @@ def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
     )
     # PLY has no 64-bit integers: track ids are written as int32 (M < 2^31)
     pcd.point.track_id = o3d.core.Tensor(record.ids.astype(np.int32)[:, None])
-    with atomic_path(path) as tmp:
-        if not o3d.t.io.write_point_cloud(str(tmp), pcd):
-            raise FileFormatError(path, "Open3D failed to write the point cloud")
+    write_cloud_ply(path, pcd)
 
 
 def reconstruct_capture(
@@ -1060,6 +1058,12 @@ def reconstruct_capture(
     work = Path(work)
     rig = capture.rig
     names = list(rig.names)
+    if len(names) < 2:
+        raise FileFormatError(
+            getattr(capture, "path", work),
+            f"reconstruction needs at least 2 cameras; the capture has {len(names)} "
+            f"({', '.join(names)})",
+        )
     T = int(capture.num_frames)
     frames = range(T) if frames is None else frames
     if frames.step != 1 or len(frames) == 0 or frames.start < 0 or frames.stop > T:
@@ -1084,6 +1088,12 @@ def reconstruct_capture(
     for t in frames[len(records) :]:
         images = [capture.read(n, t) for n in names]
         rec = tracker.step(t, images)
+        if len(rec.ids) == 0:
+            logger.warning(
+                "frame %d: no point reconstructed (black or featureless images?); "
+                "writing an empty cloud and going on",
+                t,
+            )
         write_frame_cloud(work / "clouds" / f"{t:06d}.ply", rec)
         _save_state(_state_path(work, t), rec, tracker.state)
         records.append(rec)

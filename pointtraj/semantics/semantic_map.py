@@ -116,6 +116,8 @@ class SemanticsConfig:
     def __post_init__(self) -> None:
         if self.visibility not in ("geometric", "observed"):
             raise ValidationError(f"visibility: 'geometric' or 'observed', got {self.visibility!r}")
+        if not 0.0 <= self.eps_e < 1.0:  # first: unobserved_visibility's range depends on it
+            raise ValidationError(f"eps_e: must be in [0, 1), got {self.eps_e}")
         if not self.eps_e < self.unobserved_visibility <= 1.0:
             raise ValidationError(
                 f"unobserved_visibility: must be in (eps_e, 1], got {self.unobserved_visibility}"
@@ -124,8 +126,6 @@ class SemanticsConfig:
             raise ValidationError(f"background_vote: must be in [0, 1], got {self.background_vote}")
         if not (self.occlusion_depth_m > 0 and self.occlusion_cell_px > 0):
             raise ValidationError("occlusion_depth_m and occlusion_cell_px must be > 0")
-        if not 0.0 <= self.eps_e < 1.0:
-            raise ValidationError(f"eps_e: must be in [0, 1), got {self.eps_e}")
         if not self.poolings:
             raise ValidationError("poolings: need at least one pooling method")
         for p in self.poolings:
@@ -401,17 +401,10 @@ class SemanticMap:
         FileFormatError
             Missing file, missing array, wrong version or inconsistent shapes (naming the array).
         """
+        from ..npzfile import load_npz
+
         path = Path(path)
-        if not path.is_file():
-            raise FileFormatError(path, "no such file")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise FileFormatError(path, f"unreadable: {exc}") from None
-        for key in ("format_version", "class_names", "poolings"):
-            if key not in arrays:
-                raise FileFormatError(path, f"missing array {key!r}")
+        arrays = load_npz(path, ("format_version", "class_names", "poolings"), "a semantic map")
         if int(arrays["format_version"]) != FORMAT_VERSION:
             raise FileFormatError(
                 path, f"format_version {int(arrays['format_version'])} (expected {FORMAT_VERSION})"

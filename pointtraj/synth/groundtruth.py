@@ -30,6 +30,7 @@ __all__ = [
     "GroundTruth",
     "GroundTruthPoints",
     "load_ground_truth",
+    "label_map_path",
     "load_label_map",
     "load_depth_map",
     "save_label_map",
@@ -338,6 +339,11 @@ def save_depth_map(capture_dir: str | os.PathLike, camera: str, frame: int, dept
     return path
 
 
+def label_map_path(capture_dir: str | os.PathLike, camera: str, frame: int) -> Path:
+    """``<capture>/gt/labels/<camera>/<frame:06d>.png``, the file :func:`load_label_map` reads."""
+    return _map_path(capture_dir, "labels", camera, frame)
+
+
 def load_label_map(capture_dir: str | os.PathLike, camera: str, frame: int) -> np.ndarray:
     """The ground-truth label map of one image.
 
@@ -358,7 +364,7 @@ def load_label_map(capture_dir: str | os.PathLike, camera: str, frame: int) -> n
     FileFormatError
         If the map is missing or not a uint8 PNG.
     """
-    png = _read_png(_map_path(capture_dir, "labels", camera, frame), np.uint8)
+    png = _read_png(label_map_path(capture_dir, camera, frame), np.uint8)
     out = png.astype(np.int16)
     out[png == _BACKGROUND_PNG] = -1
     return out

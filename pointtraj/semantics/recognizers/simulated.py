@@ -69,7 +69,7 @@ from typing import Any
 
 import numpy as np
 
-from ...errors import ValidationError
+from ...errors import FileFormatError, ValidationError
 from .base import ImageContext, Recognizer
 
 __all__ = [
@@ -498,7 +498,7 @@ class SimulatedRecognizer(Recognizer):
             raise ValidationError(
                 "simulated recogniser: no capture folder (pass capture= or ImageContext.capture)"
             )
-        from ...synth.groundtruth import load_label_map
+        from ...synth.groundtruth import label_map_path, load_label_map
 
         label_map = load_label_map(capture, context.camera, context.frame)
         if image is not None and np.shape(image)[:2] != np.shape(label_map):
@@ -506,12 +506,18 @@ class SimulatedRecognizer(Recognizer):
                 f"image of {context.camera} frame {context.frame} is {np.shape(image)[:2]}, "
                 f"its label map {np.shape(label_map)}"
             )
-        return simulate_confidences(
-            label_map,
-            self.class_names,
-            self.kinds,
-            self.noise,
-            camera=context.camera,
-            frame=context.frame,
-            seed=self.seed,
-        )
+        try:
+            return simulate_confidences(
+                label_map,
+                self.class_names,
+                self.kinds,
+                self.noise,
+                camera=context.camera,
+                frame=context.frame,
+                seed=self.seed,
+            )
+        except ValidationError as exc:  # e.g. a class index beyond labels.toml's classes
+            raise FileFormatError(
+                label_map_path(capture, context.camera, context.frame),
+                f"{exc} (labels.toml has {len(self.class_names)} classes)",
+            ) from None
