@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .errors import PointtrajError, os_error_message
+from .errors import PointtrajError
 
 __all__ = ["affinity", "label"]
 
@@ -49,19 +49,12 @@ def _config_from(cls, path: Path | None, table: str, overrides: dict):
 def affinity(work: Path, config_path: Path | None, **options) -> None:
     """Compute WORK/affinity.npz from WORK/trajectories.npz (paper Section 4.2)."""
     from .affinity import AffinityConfig
-    from .cli_common import ProgressBars
+    from .cli_common import cli_errors, progress_bars
     from .stages import affinity_work
 
     cfg = _config_from(AffinityConfig, config_path, "affinity", options)
-    bars = ProgressBars()
-    try:
+    with cli_errors(work), progress_bars() as bars:
         graph = affinity_work(work, cfg, progress=bars)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
-    except OSError as exc:  # a read-only or full disk: name the file
-        raise click.ClickException(os_error_message(exc, work)) from None
-    finally:
-        bars.close()
     click.echo(
         f"{graph.num_edges} affinity edges over {graph.num_nodes} trajectories "
         f"-> {work / 'affinity.npz'}"
@@ -85,21 +78,14 @@ def affinity(work: Path, config_path: Path | None, **options) -> None:
 )
 def label(work: Path, no_clouds: bool, config_path: Path | None, **options) -> None:
     """Label every trajectory by alpha-expansion: WORK/labels.npz, labels.csv, clouds/*.ply."""
-    from .cli_common import ProgressBars
+    from .cli_common import cli_errors, progress_bars
     from .stages import LabelStageConfig, label_work
 
     if no_clouds:
         options["write_clouds"] = False
     cfg = _config_from(LabelStageConfig, config_path, "label", options)
-    bars = ProgressBars()
-    try:
+    with cli_errors(work), progress_bars() as bars:
         res = label_work(work, cfg, progress=bars)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
-    except OSError as exc:  # a read-only or full disk: name the file
-        raise click.ClickException(os_error_message(exc, work)) from None
-    finally:
-        bars.close()
     changed = int((res.labels != res.argmax).sum())
     click.echo(
         f"labelled {len(res)} trajectories ({changed} changed from argmax L3D), energy "

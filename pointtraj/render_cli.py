@@ -6,8 +6,6 @@ from pathlib import Path
 
 import click
 
-from .errors import PointtrajError, os_error_message
-
 __all__ = ["render", "parse_frame_range", "parse_size"]
 
 
@@ -139,12 +137,11 @@ def render(
         bar.label = name
         bar.update(done - bar.pos)
 
+    from .cli_common import cli_errors
+
     try:
-        result = render_work(work, cfg, force=force, progress=progress)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
-    except OSError as exc:  # a read-only or full disk: name the file
-        raise click.ClickException(os_error_message(exc, work)) from None
+        with cli_errors(work):
+            result = render_work(work, cfg, force=force, progress=progress)
     finally:
         if bar is not None:
             bar.__exit__(None, None, None)

@@ -6,8 +6,6 @@ from pathlib import Path
 
 import click
 
-from ..errors import PointtrajError, os_error_message
-
 __all__ = ["evaluate"]
 
 
@@ -35,7 +33,7 @@ def evaluate(work: Path, capture: Path | None, config_path: Path | None, **optio
     validity on held-out cameras) and, on synthetic captures, the ground-truth metrics.
     """
     from ..affinity_cli import _config_from
-    from ..cli_common import ProgressBars
+    from ..cli_common import cli_errors, progress_bars
     from ..stages import SemanticsStageConfig
     from .study import EvaluateConfig, evaluate_work, headline
 
@@ -46,15 +44,8 @@ def evaluate(work: Path, capture: Path | None, config_path: Path | None, **optio
 
         if "semantics" in load_toml(config_path):  # readable: _config_from checked it
             semantics = _config_from(SemanticsStageConfig, config_path, "semantics", {})
-    bars = ProgressBars()
-    try:
+    with cli_errors(work), progress_bars() as bars:
         metrics = evaluate_work(work, cfg, capture, semantics_config=semantics, progress=bars)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
-    except OSError as exc:  # a read-only or full disk: name the file
-        raise click.ClickException(os_error_message(exc, work)) from None
-    finally:
-        bars.close()
     for line in headline(metrics):
         click.echo(line)
     click.echo(f"report: {work / 'report' / 'index.md'}")
