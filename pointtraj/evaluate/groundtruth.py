@@ -61,12 +61,13 @@ def voted_labels(
     (M,) int64 ndarray
         Class index; -1 where the majority is the background, -2 where no camera votes.
     """
+    from ..npzfile import load_npz
     from ..session import Capture
     from ..synth.groundtruth import load_label_map
 
     capture = Path(capture)
     rig = Capture.open(capture).rig.subset(trajectories.camera_names)
-    K = int(np.load(capture / "gt" / "points.npz")["class_names"].shape[0])
+    K = int(load_npz(capture / "gt" / "points.npz", ["class_names"])["class_names"].shape[0])
     votes = np.zeros((trajectories.num_trajectories, K + 1))  # column 0: background
     for t in range(trajectories.num_frames):
         fs = trajectories.frame(t)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import logging
 import os
-import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +28,7 @@ import numpy as np
 from ..atomic import save_npz_atomic
 from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError, check_array
+from ..npzfile import load_npz
 from ..trajectories import Trajectories, quantize_visibility, write_cloud_ply
 from .densify import DensifyConfig
 from .matching import MatchingConfig, MultiViewTracks, match_frame, resolve_ambiguous
@@ -974,10 +974,25 @@ def _save_state(path: Path, record: FrameRecord, state: TrackState) -> None:
     )
 
 
+_STATE_KEYS = (
+    "frame",
+    "rec_ids",
+    "rec_xyz",
+    "rec_visibility",
+    "rec_error",
+    "rec_color",
+    "rec_num_new",
+    "live_ids",
+    "live_xyz",
+    "live_visibility",
+    "live_pixels",
+    "next_id",
+)
+
+
 def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
+    d = load_npz(path, _STATE_KEYS, "a tracker state")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            d = {k: z[k] for k in z.files}
         t = int(d["frame"])
         rec = FrameRecord(
             t,
@@ -996,7 +1011,7 @@ def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
             d["live_pixels"],
             int(d["next_id"]),
         )
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+    except (ValueError, TypeError) as exc:
         raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
     if st.visibility.shape[1:] != (num_cameras,) or rec.visibility.shape[1:] != (num_cameras,):
         raise FileFormatError(path, f"tracker state is not for {num_cameras} cameras")

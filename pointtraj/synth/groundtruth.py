@@ -24,6 +24,7 @@ import numpy as np
 from ..atomic import atomic_path, save_npz_atomic
 from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError, check_array
+from ..npzfile import load_npz
 from ..trajectories import Trajectories, quantize_visibility
 
 __all__ = [
@@ -445,17 +446,7 @@ def save_frame(capture_dir: str | os.PathLike, frame: int, xyz, visible) -> Path
 
 
 def _load_npz(path: Path, need: list[str]) -> dict[str, np.ndarray]:
-    if not path.is_file():
-        raise FileFormatError(path, "no such file")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise FileFormatError(path, f"not a readable .npz file ({exc})") from None
-    missing = [k for k in need if k not in data]
-    if missing:
-        raise FileFormatError(path, f"missing field(s) {', '.join(missing)}")
-    return data
+    return load_npz(path, need, "a ground-truth file")
 
 
 @dataclass(eq=False)

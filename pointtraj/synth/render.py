@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import write_text_atomic
+from ..atomic import remove_stale_temporaries, write_text_atomic
 from ..camera import CameraRig
 from ..errors import ValidationError
 from .scenes import Scene
@@ -559,6 +559,9 @@ def render_capture(
                 + ", ".join(f"{k}={old.get(k)!r}" for k in diff)
                 + "); choose another output folder"
             )
+        stale = remove_stale_temporaries(out)  # of an interrupted render of this capture
+        if stale:
+            logger.info("%s: removed %d temporary files of an interrupted run", out, len(stale))
         if int(old.get("frames", 0)) > frames:
             raise ValidationError(
                 f"{out} already holds {old['frames']} frames; ask for at least as many "

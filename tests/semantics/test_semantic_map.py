@@ -344,7 +344,7 @@ def test_precomputed_maps_give_the_same_map(scene, tmp_path):
     with pytest.raises(FileFormatError, match=r"expected shape \(h, w, 2\)"):
         PrecomputedRecognizer(CLASSES[:2], tmp_path).recognize(None, ImageContext("cam0", 0))
     np.savez(tmp_path / "cam0" / "000050.npz", other=np.zeros((2, 2, 3)))
-    with pytest.raises(FileFormatError, match="no array 'L2D'"):
+    with pytest.raises(FileFormatError, match="missing array 'L2D'"):
         PrecomputedRecognizer(CLASSES, tmp_path).recognize(None, ImageContext("cam0", 50))
     np.save(tmp_path / "cam0" / "000051.npy", np.ones((2, 2, 3), np.float32))
     out = PrecomputedRecognizer(CLASSES, tmp_path).recognize(None, ImageContext("cam0", 51))

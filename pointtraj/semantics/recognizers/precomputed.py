@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import FileFormatError, ValidationError
+from ...npzfile import load_npz
 from .base import ImageContext, Recognizer
 
 __all__ = ["PrecomputedRecognizer", "confidence_map_path", "save_confidence_map"]
@@ -103,12 +104,7 @@ class PrecomputedRecognizer(Recognizer):
         npy = npz.with_suffix(".npy")
         try:
             if npz.is_file():
-                with np.load(npz, allow_pickle=False) as data:
-                    if "L2D" not in data.files:
-                        raise FileFormatError(
-                            npz, f"no array 'L2D' (has: {', '.join(data.files) or 'none'})"
-                        )
-                    L = data["L2D"]
+                L = load_npz(npz, ["L2D"], "a confidence map")["L2D"]
                 path = npz
             elif npy.is_file():
                 L = np.load(npy, allow_pickle=False)
