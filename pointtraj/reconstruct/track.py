@@ -32,6 +32,7 @@ from ..npzfile import load_npz
 from ..trajectories import Trajectories, quantize_visibility, write_cloud_ply
 from .densify import DensifyConfig
 from .matching import MatchingConfig, MultiViewTracks, match_frame, resolve_ambiguous
+from .views import ViewsConfig, discover_views
 
 if TYPE_CHECKING:  # pragma: no cover
     from .triangulate import Triangulation, TriangulationConfig
@@ -127,6 +128,10 @@ class ReconstructConfig:
     densify : DensifyConfig
         Patch densification around the frame's points, for wide baselines where features and
         view expansion find little (table ``[reconstruct.densify]``; off by default).
+    views : ViewsConfig
+        View discovery by a plane sweep, at any baseline: every point is searched in the
+        cameras that should see it and that flow (``expand_views``) cannot reach (table
+        ``[reconstruct.views]``; :mod:`pointtraj.reconstruct.views`).
     """
 
     sigma_px: float = 1.0
@@ -153,6 +158,7 @@ class ReconstructConfig:
     seed: int = 0
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
+    views: ViewsConfig = field(default_factory=ViewsConfig)
 
     def __post_init__(self) -> None:
         checks = {
@@ -190,6 +196,8 @@ class ReconstructConfig:
             raise ValidationError("ReconstructConfig.matching must be a MatchingConfig")
         if not isinstance(self.densify, DensifyConfig):
             raise ValidationError("ReconstructConfig.densify must be a DensifyConfig")
+        if not isinstance(self.views, ViewsConfig):
+            raise ValidationError("ReconstructConfig.views must be a ViewsConfig")
 
     def triangulation(self) -> TriangulationConfig:
         """The matching :class:`TriangulationConfig`."""
@@ -613,10 +621,30 @@ class Tracker:
             edges = select_edges(rig, self.config.max_angle_deg, self.config.max_pairs_per_camera)
         self.edges = check_array("edges", edges, (None, 2), dtype=np.int64)
         self.state = state if state is not None else TrackState.empty(len(rig))
-        # view expansion can only find something where two cameras are close enough
-        near = axis_angles(rig) <= self.config.expand_max_angle_deg
-        np.fill_diagonal(near, False)
+        # view expansion by flow can only find something where two cameras are close enough
+        angles = axis_angles(rig)
+        np.fill_diagonal(angles, np.inf)
+        near = angles <= self.config.expand_max_angle_deg
         self._expand_views = self.config.expand_views and bool(near.any())
+        if self.config.expand_views and not self._expand_views and len(rig) > 1:
+            logger.warning(
+                "view expansion by flow is off on this rig: no two cameras' optical axes are "
+                "within expand_max_angle_deg = %.0f degrees (the nearest pair: %.1f); %s",
+                self.config.expand_max_angle_deg,
+                float(angles.min()),
+                "view discovery by plane sweep ([reconstruct.views]) searches every baseline"
+                if self.config.views.enabled
+                else "points will mostly keep the two views they were matched in",
+            )
+        lonely = [rig.names[c] for c in range(len(rig)) if not np.isin(c, self.edges).any()]
+        if lonely and len(rig) > 1:
+            logger.warning(
+                "cameras %s are matched with no other camera (max_angle_deg = %.0f, "
+                "max_pairs_per_camera = %d): they add views to points but start none",
+                ", ".join(lonely),
+                self.config.max_angle_deg,
+                self.config.max_pairs_per_camera,
+            )
         self._prev_grey: list[np.ndarray] | None = None
         self._first_frame = first_frame
 
@@ -693,17 +721,25 @@ class Tracker:
             keep_new &= ~covered
             logger.debug("frame %d: %d new points, %d covered", t, keep_new.sum(), covered.sum())
 
-        # 3. union, occlusion, visibility, stopping rule
+        # 3. union, more views, occlusion, visibility, stopping rule
+        prepared = None
+        if cfg.densify.enabled or cfg.views.enabled:
+            from .densify import prepare_images
+
+            prepared = prepare_images(rig, grey)
         parts = [(tri_old, obs, keep_old)]
         if new_tri is not None:
             parts.append((new_tri, new_obs, keep_new))
             if cfg.densify.enabled:
-                parts.append(self._densify(grey, parts))
+                parts.append(self._densify(grey, prepared, parts))
         xyz, vis, err, pix = _union(parts)
         n_old = int(keep_old.sum())
         old_ids = st.ids[keep_old]
         if self._expand_views and len(xyz):
             xyz, vis, err, pix = self._expand(grey, xyz, vis, err, pix)
+        if cfg.views.enabled and len(xyz):
+            xyz, vis, err, pix, keep = self._discover(t, prepared, xyz, vis, err, pix, old_ids)
+            xyz, vis, err, pix = xyz[keep], vis[keep], err[keep], pix[:, keep]
         if cfg.occlusion_depth_m > 0 and len(xyz):
             from .triangulate import occlusion_test
 
@@ -745,7 +781,7 @@ class Tracker:
         pix: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """View expansion (:func:`expand_views`) and re-triangulation of the points it grew."""
-        from .triangulate import occlusion_test, triangulate_ransac
+        from .triangulate import occlusion_test
 
         cfg = self.config
         proj = self.rig.project(xyz)
@@ -771,6 +807,61 @@ class Tracker:
             fb_max_px=cfg.fb_max_px,
             projection=proj,
         )
+        return self._retriangulate(xyz, vis, err, pix, grown)
+
+    def _discover(
+        self,
+        t: int,
+        images: Sequence[np.ndarray],
+        xyz: np.ndarray,
+        vis: np.ndarray,
+        err: np.ndarray,
+        pix: np.ndarray,
+        old_ids: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """View discovery (:func:`~.views.discover_views`) and re-triangulation.
+
+        The first ``len(old_ids)`` points are tracked ones: their cameras are searched every
+        ``views.retry_every`` frames, staggered by id and camera. Returns the points and which
+        to keep (new two-view points that a searched third camera did not confirm are not).
+        """
+        from .triangulate import occlusion_test
+
+        cfg = self.config
+        C, N, n_old = len(self.rig), len(xyz), len(old_ids)
+        proj = self.rig.project(xyz)
+        cand = proj.in_image.copy()
+        if cfg.occlusion_depth_m > 0:
+            occ = occlusion_test(
+                self.rig, xyz, cfg.occlusion_depth_m, cell_px=cfg.occlusion_cell_px, projection=proj
+            )
+            cand &= ~occ.T
+        if cfg.views.retry_every > 1 and n_old:
+            due = (old_ids[None, :] + np.arange(C)[:, None] + t) % cfg.views.retry_every == 0
+            cand[:, :n_old] &= due
+        grown, searched = discover_views(
+            self.rig, images, xyz, pix, cand, cfg.views, sigma_px=cfg.sigma_px
+        )
+        xyz, vis, err, pix = self._retriangulate(xyz, vis, err, pix, grown)
+        keep = np.ones(N, bool)
+        if cfg.views.confirm_new:
+            views = np.count_nonzero(vis > cfg.visibility_threshold, axis=1)  # (N,)
+            unconfirmed = (views < 3) & searched.any(axis=0)
+            keep[n_old:] = ~unconfirmed[n_old:]
+        return xyz, vis, err, pix, keep
+
+    def _retriangulate(
+        self,
+        xyz: np.ndarray,
+        vis: np.ndarray,
+        err: np.ndarray,
+        pix: np.ndarray,
+        grown: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """RANSAC re-triangulation of the points that ``grown`` (C, N, 2) gives more views;
+        a view stays only where the RANSAC keeps it as an inlier."""
+        from .triangulate import triangulate_ransac
+
         more = np.flatnonzero(
             np.all(np.isfinite(grown), axis=2).sum(axis=0)
             > np.all(np.isfinite(pix), axis=2).sum(axis=0)
@@ -795,15 +886,18 @@ class Tracker:
         return xyz, vis, err, pix
 
     def _densify(
-        self, grey: list[np.ndarray], parts: list[tuple[Triangulation, np.ndarray, np.ndarray]]
+        self,
+        grey: list[np.ndarray],
+        prepared: Sequence[np.ndarray],
+        parts: list[tuple[Triangulation, np.ndarray, np.ndarray]],
     ) -> tuple[Triangulation, np.ndarray, np.ndarray]:
         """Patch densification (:func:`~.densify.densify`) around the frame's points so far."""
-        from .densify import densify, prepare_images
+        from .densify import densify
         from .triangulate import triangulate_ransac
 
         cfg = self.config
         xyz, _, _, pix = _union(parts)
-        dense = densify(self.rig, prepare_images(self.rig, grey), xyz, pix, pix, cfg.densify)
+        dense = densify(self.rig, prepared, xyz, pix, pix, cfg.densify)
         for c in range(len(self.rig)):  # keep the views that Lucas-Kanade can follow: a flow
             # from the image to itself fails where its minimum-eigenvalue test will
             dense[c] = track_flow(

@@ -1,0 +1,364 @@
+"""View discovery: find each point in every camera that should see it, at any baseline.
+
+Matching chains into mostly two-view tracks, and Lucas-Kanade flow between two cameras only
+finds a point where their images look alike (optical axes within about 40 degrees). View
+discovery uses the calibration instead, as the plane sweep of :mod:`.densify` does:
+
+1. **Candidates.** Each (camera c, point n) where n projects inside c's image, is not occluded,
+   is not observed yet, and faces c: the angle between the point's surface normal (fitted to
+   its neighbours with Open3D) and the direction to c is below ``max_incidence_deg``.
+2. **Sweep.** The observing camera r whose direction to the point is nearest c's gives the
+   patch: ``patch_size`` x ``patch_size`` samples around the point's observation in r, on the
+   plane through the point with its normal. Depths along r's ray through the observation are
+   swept over the point's uncertainty (``depth_sigmas`` standard deviations of its depth,
+   from the triangulation angle; within ``[min_depth_range_m, max_depth_range_m]``), the
+   plane warped into c at each (a plane homography), and scored by normalised
+   cross-correlation (NCC) with r's patch.
+3. **Acceptance.** The best NCC must reach ``min_ncc``, inside the swept range, with no rival
+   peak within ``min_margin`` of it, on a textured patch (``min_std``). The new observation is
+   the point at the best depth projected into c. The tracker then re-triangulates with RANSAC,
+   which keeps the view only where it agrees with the others.
+
+A point's unobserved cameras are searched when it is new, and then every ``retry_every``
+frames (staggered by point and camera), so that a tracked point does not pay for the same
+fruitless search every frame.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import CameraRig
+from ..errors import ValidationError, check_array
+from .densify import _ncc, _rays, _sample, _zscore
+
+__all__ = ["ViewsConfig", "discover_views", "point_normals", "depth_uncertainty"]
+
+logger = logging.getLogger(__name__)
+
+_CHUNK = 4096  # points per vectorised block (bounds the (n, C, C) work arrays)
+
+
+@dataclass(frozen=True)
+class ViewsConfig:
+    """Parameters of view discovery (TOML table ``[reconstruct.views]``).
+
+    Attributes
+    ----------
+    enabled : bool
+        Search every point in the cameras that should see it (on by default).
+    min_ncc : float
+        NCC the warped patch needs at its best depth.
+    min_margin : float
+        The best NCC must exceed every score more than ``peak_width`` depth steps away by this.
+    peak_width : int
+        Depth steps on each side of the best one that belong to its peak.
+    min_std : float
+        Grey-level standard deviation (0-255) the reference patch needs.
+    patch_size : int
+        Samples per side of the patch.
+    patch_spacing_px : float
+        Spacing of the patch's samples in the reference image.
+    depth_steps : int
+        Depth hypotheses swept (odd keeps the point's own depth).
+    depth_sigmas : float
+        The sweep covers this many standard deviations of the point's depth on each side.
+    min_depth_range_m, max_depth_range_m : float
+        Bounds of the half-range swept.
+    max_incidence_deg : float
+        A camera that sees the point's surface at a more grazing angle (or from behind) is not
+        searched.
+    normal_neighbors : int
+        Neighbours of a point that its surface normal is fitted to.
+    retry_every : int
+        A tracked point's unobserved cameras are searched every this many frames (new points
+        at once).
+    confirm_new : bool
+        A new point left with two views is dropped when another camera was searched for it
+        with a usable patch and did not confirm it (two views always agree with a wrong match
+        along the epipolar line; a third decides).
+    """
+
+    enabled: bool = True
+    min_ncc: float = 0.8
+    min_margin: float = 0.05
+    peak_width: int = 2
+    min_std: float = 3.0
+    patch_size: int = 7
+    patch_spacing_px: float = 1.5
+    depth_steps: int = 15
+    depth_sigmas: float = 3.0
+    min_depth_range_m: float = 0.01
+    max_depth_range_m: float = 0.08
+    max_incidence_deg: float = 75.0
+    normal_neighbors: int = 12
+    retry_every: int = 3
+    confirm_new: bool = True
+
+    def __post_init__(self) -> None:
+        checks = {
+            "min_ncc": -1 <= self.min_ncc <= 1,
+            "min_margin": self.min_margin >= 0,
+            "peak_width": 1 <= self.peak_width < self.depth_steps // 2,
+            "min_std": self.min_std >= 0,
+            "patch_size": self.patch_size >= 3,
+            "patch_spacing_px": self.patch_spacing_px > 0,
+            "depth_steps": self.depth_steps >= 5,
+            "depth_sigmas": self.depth_sigmas > 0,
+            "min_depth_range_m": self.min_depth_range_m > 0,
+            "max_depth_range_m": self.max_depth_range_m >= self.min_depth_range_m,
+            "max_incidence_deg": 0 < self.max_incidence_deg <= 90,
+            "normal_neighbors": self.normal_neighbors >= 3,
+            "retry_every": self.retry_every >= 1,
+        }
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise ValidationError(f"ViewsConfig.{bad[0]} out of range: {getattr(self, bad[0])!r}")
+
+
+def point_normals(
+    rig: CameraRig, xyz: np.ndarray, observed: np.ndarray, neighbors: int = 12
+) -> np.ndarray:
+    """Unit surface normals of a frame's points, facing the cameras that observe them.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    xyz : (N, 3) float ndarray
+    observed : (C, N) bool ndarray
+        The cameras observing each point.
+    neighbors : int
+        Nearest neighbours the local plane is fitted to (Open3D ``estimate_normals``).
+
+    Returns
+    -------
+    (N, 3) float64 ndarray
+        Normals; where a point has too few neighbours for a plane, the mean direction to its
+        observing cameras.
+    """
+    import open3d as o3d
+
+    X = check_array("xyz", xyz, (None, 3))
+    N = len(X)
+    centres = np.stack([cam.C for cam in rig])  # (C, 3)
+    to_cams = centres[:, None, :] - X[None]  # (C, N, 3)
+    to_cams /= np.linalg.norm(to_cams, axis=2, keepdims=True)
+    facing = np.einsum("cn,cnk->nk", observed.astype(np.float64), to_cams)  # (N, 3)
+    facing /= np.maximum(np.linalg.norm(facing, axis=1, keepdims=True), 1e-12)
+    if N < 3:
+        return facing
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(X))
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(min(neighbors, N)))
+    normals = np.asarray(pcd.normals)
+    flip = np.einsum("nk,nk->n", normals, facing) < 0
+    normals[flip] *= -1
+    bad = ~np.all(np.isfinite(normals), axis=1) | (np.linalg.norm(normals, axis=1) < 0.5)
+    normals[bad] = facing[bad]
+    return normals
+
+
+def depth_uncertainty(
+    rig: CameraRig, xyz: np.ndarray, observed: np.ndarray, sigma_px: float = 1.0
+) -> np.ndarray:
+    """Standard deviation of each point's position along its worst-constrained direction.
+
+    For a point seen from directions whose largest mutual angle is theta, by cameras at a
+    distance where a pixel spans s metres, an image error of ``sigma_px`` moves it about
+    ``sigma_px * s / sin(theta)`` along the rays.
+
+    Parameters
+    ----------
+    rig : CameraRig
+    xyz : (N, 3) float ndarray
+    observed : (C, N) bool ndarray
+    sigma_px : float
+
+    Returns
+    -------
+    (N,) float64 ndarray
+        Metres; infinite for a point observed by fewer than two cameras.
+    """
+    X = check_array("xyz", xyz, (None, 3))
+    centres = np.stack([cam.C for cam in rig])
+    f = np.array([cam.K[0, 0] for cam in rig])  # (C,)
+    out = np.full(len(X), np.inf)
+    for a in range(0, len(X), _CHUNK):
+        d = centres[:, None, :] - X[None, a : a + _CHUNK]  # (C, n, 3)
+        dist = np.linalg.norm(d, axis=2)  # (C, n)
+        u = (d / np.maximum(dist[..., None], 1e-12)).astype(np.float32)
+        obs = observed[:, a : a + _CHUNK]
+        cos = np.einsum("cnk,dnk->ncd", u, u)  # (n, C, C)
+        both = obs.T[:, :, None] & obs.T[:, None, :]
+        min_cos = np.where(both, cos, 1.0).min(axis=(1, 2)).astype(np.float64)
+        sin = np.sqrt(np.clip(1 - min_cos**2, 0.0, 1.0))
+        scale = np.where(obs, dist / f[:, None], 0.0).max(axis=0)  # metres per pixel
+        out[a : a + _CHUNK] = np.where(sin > 1e-6, sigma_px * scale / sin, np.inf)
+    return out
+
+
+def _references(
+    to_cams: np.ndarray, observed: np.ndarray, cs: np.ndarray, ns: np.ndarray
+) -> np.ndarray:
+    """For candidate views (cs, ns), the observing camera whose direction to the point is
+    nearest the candidate camera's (to_cams: (C, N, 3) unit directions)."""
+    out = np.empty(len(cs), np.int64)
+    for a in range(0, len(cs), _CHUNK):
+        c, n = cs[a : a + _CHUNK], ns[a : a + _CHUNK]
+        cos = np.einsum("mk,cmk->mc", to_cams[c, n], to_cams[:, n])  # (m, C)
+        out[a : a + _CHUNK] = np.argmax(np.where(observed[:, n].T, cos, -2.0), axis=1)
+    return out
+
+
+def discover_views(
+    rig: CameraRig,
+    images: Sequence[np.ndarray],
+    xyz: np.ndarray,
+    pixels: np.ndarray,
+    candidates: np.ndarray,
+    config: ViewsConfig | None = None,
+    *,
+    sigma_px: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Find points in more cameras by a plane sweep from an observing camera.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    images : sequence of C (H, W) float32 ndarrays
+        Undistorted grey images (:func:`pointtraj.reconstruct.densify.prepare_images`).
+    xyz : (N, 3) float ndarray
+    pixels : (C, N, 2) float ndarray
+        Observations so far, distorted pixels (NaN where a camera does not observe the point).
+    candidates : (C, N) bool ndarray
+        Where to search (in the image, not occluded); observed views are skipped.
+    config : ViewsConfig, optional
+    sigma_px : float
+        Image noise (px) that the depth range is derived from.
+
+    Returns
+    -------
+    pixels : (C, N, 2) float64 ndarray
+        ``pixels`` with the new observations filled in.
+    searched : (C, N) bool ndarray
+        The views that were searched with a usable (textured) patch, found or not.
+    """
+    cfg = config or ViewsConfig()
+    C = len(rig)
+    if len(images) != C:
+        raise ValidationError(f"discover_views: expected {C} images, got {len(images)}")
+    X = check_array("xyz", xyz, (None, 3))
+    N = len(X)
+    pix = check_array("pixels", pixels, (C, N, 2)).astype(np.float64)
+    cand = check_array("candidates", candidates, (C, N), dtype=bool)
+    out = pix.copy()
+    searched = np.zeros((C, N), bool)
+    observed = np.all(np.isfinite(pix), axis=2)  # (C, N)
+    cand = cand & ~observed & (observed.sum(axis=0) >= 2)[None, :]
+    if not cand.any():
+        return out, searched
+    centres = np.stack([cam.C for cam in rig])
+    to_cams = (centres[:, None, :] - X[None]).astype(np.float32)  # (C, N, 3)
+    to_cams /= np.linalg.norm(to_cams, axis=2, keepdims=True)
+    normals = point_normals(rig, X, observed, cfg.normal_neighbors)
+    incidence = np.einsum("cnk,nk->cn", to_cams, normals)  # cos of the incidence angle
+    cand &= incidence >= np.cos(np.radians(cfg.max_incidence_deg))
+    if not cand.any():
+        return out, searched
+    cs, ns = np.nonzero(cand)
+    rs = _references(to_cams, observed, cs, ns)
+    sigma = depth_uncertainty(rig, X, observed, sigma_px)
+    half = np.clip(cfg.depth_sigmas * sigma, cfg.min_depth_range_m, cfg.max_depth_range_m)
+    ideal = rig.undistort_pixels(np.where(observed[..., None], pix, np.nan))
+    h = (cfg.patch_size - 1) / 2
+    off = (np.arange(cfg.patch_size) - h) * cfg.patch_spacing_px
+    offsets = np.stack(np.meshgrid(off, off), axis=-1).reshape(-1, 2)  # (P, 2)
+    steps = np.linspace(-1.0, 1.0, cfg.depth_steps)  # (D,) in units of the half-range
+    found = 0
+    pair = rs * C + cs
+    order = np.argsort(pair, kind="stable")
+    bounds = np.flatnonzero(np.diff(pair[order])) + 1
+    for group in np.split(order, bounds):
+        r, c = int(rs[group[0]]), int(cs[group[0]])
+        n = ns[group]
+        ok, usable, Xb = _sweep(
+            rig, images, r, c, X[n], normals[n], ideal[r, n], half[n], offsets, steps, cfg
+        )
+        searched[c, n] = usable
+        if ok.any():
+            p = rig.project(Xb[ok])
+            inside = p.in_image[c]
+            sel = n[ok][inside]
+            out[c, sel] = p.pixels[c][inside]
+            found += sel.size
+    logger.debug("view discovery: %d of %d candidate views found", found, len(cs))
+    return out, searched
+
+
+def _sweep(
+    rig: CameraRig,
+    images: Sequence[np.ndarray],
+    r: int,
+    c: int,
+    X: np.ndarray,
+    normals: np.ndarray,
+    ideal_r: np.ndarray,
+    half: np.ndarray,
+    offsets: np.ndarray,
+    steps: np.ndarray,
+    cfg: ViewsConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sweep points seen in reference camera r for camera c.
+
+    Returns
+    -------
+    accepted : (n,) bool ndarray
+    usable : (n,) bool ndarray
+        Whose patch could be compared (textured, plane not grazing in r).
+    best : (n, 3) float ndarray
+        The points at their best depth along r's rays through their observations.
+    """
+    cam = rig[r]
+    n = len(X)
+    patch = ideal_r[:, None, :] + offsets[None]  # (n, P, 2)
+    ref, std = _zscore(_sample(images[r], patch[..., 0], patch[..., 1]))
+    usable = np.isfinite(std) & (std >= cfg.min_std) & np.all(np.isfinite(ref), axis=1)
+    none = (np.zeros(n, bool), np.zeros(n, bool), np.zeros((n, 3)))
+    if not usable.any():
+        return none
+    rays = _rays(cam, patch)  # (n, P, 3), camera frame, z = 1
+    centre_ray = _rays(cam, ideal_r)  # (n, 3)
+    nr = normals @ cam.R.T  # (n, 3) normals in r's frame
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = np.einsum("nk,nk->n", nr, centre_ray)[:, None] / np.einsum("npk,nk->np", rays, nr)
+    w = np.where(np.isfinite(w) & (w > 0.2) & (w < 5.0), w, np.nan)  # (n, P): plane depth ratio
+    usable &= np.all(np.isfinite(w), axis=1)
+    if not usable.any():
+        return none
+    z0 = ((X - cam.C) @ cam.R.T)[:, 2]  # the point's depth in r
+    # depth of the ray through the observation where it passes the point (the observation
+    # may sit a little off the point's projection)
+    z = z0[:, None] + half[:, None] * steps[None, :]  # (n, D)
+    u = np.flatnonzero(usable)
+    scores = np.full((n, len(steps)), -1.0)
+    scores[u] = _ncc(images[c], rig[c], cam, rays[u] * w[u, :, None], z[u], ref[u])
+    D = len(steps)
+    best = np.argmax(scores, axis=1)
+    top = scores[np.arange(n), best]
+    far = np.abs(np.arange(D)[None, :] - best[:, None]) > cfg.peak_width
+    rival = np.where(far, scores, -np.inf).max(axis=1)
+    interior = (best > 0) & (best < D - 1)
+    accept = usable & interior & (top >= cfg.min_ncc) & (top - rival >= cfg.min_margin)
+    b = np.clip(best, 1, D - 2)
+    y0, y1, y2 = (scores[np.arange(n), b + k] for k in (-1, 0, 1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        delta = np.clip(0.5 * (y0 - y2) / (y0 - 2 * y1 + y2), -0.5, 0.5)
+    delta = np.where(np.isfinite(delta), delta, 0.0)
+    z_best = z[np.arange(n), b] + delta * half * (steps[1] - steps[0])
+    Xb = cam.C + (z_best[:, None] * centre_ray) @ cam.R  # (n, 3) world
+    return accept, usable, Xb

@@ -1,0 +1,144 @@
+"""View discovery: points found, by a plane sweep, in cameras 60 degrees and more from the ones
+that observe them, where flow between views finds nothing."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_track import make_texture, render_plane
+
+from pointtraj.camera import Camera, CameraRig
+from pointtraj.config import from_mapping
+from pointtraj.errors import ValidationError
+from pointtraj.reconstruct.densify import prepare_images
+from pointtraj.reconstruct.matching import MatchingConfig
+from pointtraj.reconstruct.track import ReconstructConfig, Tracker, expand_views
+from pointtraj.reconstruct.views import ViewsConfig, depth_uncertainty, discover_views
+
+
+def sixty_rig(w: int = 480, h: int = 360) -> CameraRig:
+    """Three cameras at -60, 0 and +60 degrees around the plane z = 0 (60 and 120 apart)."""
+    cams = []
+    for i, deg in enumerate((-60.0, 0.0, 60.0)):
+        a = np.deg2rad(deg)
+        C = [2.0 * np.sin(a), -0.3, 2.0 * np.cos(a)]
+        cams.append(Camera.look_at(f"c{i}", C, [0, 0, 0], (w, h), 400.0, up=[0, -1, 0]))
+    return CameraRig(cams)
+
+
+@pytest.fixture(scope="module")
+def sixty():
+    rig = sixty_rig()
+    tex = make_texture(np.random.default_rng(3))
+    images = [render_plane(c, tex, np.array([-1.0, -1.0, 0.0]), 2.0) for c in rig]
+    return rig, images
+
+
+def plane_points(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-0.3, 0.3, n), rng.uniform(-0.3, 0.3, n), np.zeros(n)])
+
+
+def two_view_observations(rig: CameraRig, X: np.ndarray, noise_px: float = 0.0) -> np.ndarray:
+    """Observations of X in cameras 0 and 1 (60 degrees apart), none in camera 2."""
+    pix = rig.project(X).pixels.copy()
+    pix += np.random.default_rng(1).normal(0, noise_px, pix.shape)
+    pix[2] = np.nan
+    return pix
+
+
+def test_discovery_finds_points_at_a_60_degree_baseline_where_flow_finds_none(sixty):
+    rig, images = sixty
+    X = plane_points(200)
+    pix = two_view_observations(rig, X)
+    cand = rig.project(X).in_image
+    grey = [im[..., 0] for im in images]
+    # flow between views reaches 40 degrees at most: nothing
+    flow = expand_views(rig, grey, X, pix, cand, max_angle_deg=40.0)
+    assert not np.isfinite(flow[2]).any()
+    out, searched = discover_views(rig, prepare_images(rig, grey), X, pix, cand)
+    found = np.all(np.isfinite(out[2]), axis=1)
+    assert searched[2].mean() > 0.9
+    assert found.mean() > 0.8, found.mean()
+    truth = rig.project(X).pixels[2]
+    err = np.linalg.norm(out[2, found] - truth[found], axis=1)
+    assert np.median(err) < 0.3 and np.percentile(err, 95) < 1.0
+    # the observed views are left as they were
+    np.testing.assert_array_equal(out[:2], pix[:2])
+
+
+def test_discovery_follows_the_depth_uncertainty_of_noisy_points(sixty):
+    """Points triangulated from noisy two-view observations lie off the plane; the sweep over
+    their depth uncertainty still finds where the third camera sees them."""
+    rig, images = sixty
+    X = plane_points(150, seed=2)
+    pix = two_view_observations(rig, X, noise_px=0.7)
+    from pointtraj.reconstruct.triangulate import triangulate_points
+
+    Xn = triangulate_points(rig, pix)
+    assert np.percentile(np.abs(Xn[:, 2]), 90) > 0.002  # noticeably off the surface
+    sigma = depth_uncertainty(rig, Xn, np.all(np.isfinite(pix), axis=2), 1.0)
+    assert np.all((sigma > 0.001) & (sigma < 0.02))
+    grey = [im[..., 0] for im in images]
+    out, _ = discover_views(rig, prepare_images(rig, grey), Xn, pix, rig.project(Xn).in_image)
+    found = np.all(np.isfinite(out[2]), axis=1)
+    assert found.mean() > 0.7
+    # the found pixel is where camera 2 sees the surface point of camera 1's observation
+    o, d = rig[1].rays(pix[1, found])
+    on_plane = o + (-o[:, 2] / d[:, 2])[:, None] * d
+    err = np.linalg.norm(out[2, found] - rig.project(on_plane).pixels[2], axis=1)
+    assert np.median(err) < 0.5
+
+
+def test_discovery_needs_texture_and_a_facing_surface(sixty):
+    rig, images = sixty
+    X = plane_points(50)
+    pix = two_view_observations(rig, X)
+    cand = rig.project(X).in_image
+    flat = [np.full_like(im[..., 0], 128) for im in images]
+    out, searched = discover_views(rig, prepare_images(rig, flat), X, pix, cand)
+    assert not np.isfinite(out[2]).any() and not searched[2].any()
+    # a camera behind the plane sees its back: not searched
+    back = Camera.look_at("b", [0.0, 0.3, -2.0], [0, 0, 0], (480, 360), 400.0, up=[0, -1, 0])
+    rig4 = CameraRig([*rig, back])
+    grey4 = [im[..., 0] for im in images] + [images[1][..., 0]]
+    pix4 = np.concatenate([pix, np.full((1, len(X), 2), np.nan)])
+    cand4 = rig4.project(X).in_image
+    assert cand4[3].all()
+    out4, searched4 = discover_views(rig4, prepare_images(rig4, grey4), X, pix4, cand4)
+    assert not searched4[3].any() and not np.isfinite(out4[3]).any()
+
+
+def test_tracker_points_gain_the_third_view(sixty):
+    rig, _ = sixty
+    tex = make_texture(np.random.default_rng(3))
+    velocity = np.array([0.01, 0.0, 0.005])
+    frames = [
+        [render_plane(c, tex, np.array([-1.0, -1.0, 0.0]) + t * velocity, 2.0) for c in rig]
+        for t in range(3)
+    ]
+    base = ReconstructConfig(
+        matching=MatchingConfig(num_features=600), max_angle_deg=130.0, min_views_new=2
+    )
+    views = {}
+    for on in (False, True):
+        cfg = dataclasses.replace(base, views=ViewsConfig(enabled=on))
+        tracker = Tracker(rig, cfg)
+        recs = [tracker.step(t, imgs) for t, imgs in enumerate(frames)]
+        n_views = np.count_nonzero(recs[-1].visibility > 0.05 * 255, axis=1)
+        views[on] = n_views
+        z_err = np.abs(recs[-1].xyz[:, 2] - 2 * velocity[2])
+        assert len(n_views) > 20 and np.median(z_err) < 0.004
+    assert np.mean(views[True] >= 3) > 0.6
+    assert np.mean(views[True] >= 3) > np.mean(views[False] >= 3) + 0.4
+
+
+def test_views_config_from_toml_and_validation():
+    cfg = from_mapping(ReconstructConfig, {"views": {"min_ncc": 0.7, "retry_every": 2}})
+    assert cfg.views == ViewsConfig(min_ncc=0.7, retry_every=2)
+    with pytest.raises(ValidationError, match="ViewsConfig.retry_every"):
+        ViewsConfig(retry_every=0)
+    with pytest.raises(ValueError, match="unknown key"):
+        from_mapping(ReconstructConfig, {"views": {"min_nc": 0.7}})
