@@ -524,8 +524,8 @@ class OcclusionAudit:
 
     @property
     def false_rate(self) -> float:
-        """Share of marked views that are truly visible (support :attr:`marked`)."""
-        return _ratio(self.marked_visible, self.marked)
+        """Share of marked views that are truly visible (support :attr:`marked`; 0 when none)."""
+        return _ratio(self.marked_visible, self.marked) if self.marked else 0.0
 
     @property
     def recall(self) -> float:
