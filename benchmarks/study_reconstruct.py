@@ -314,9 +314,9 @@ def main() -> None:
         format="%(levelname)s %(name)s: %(message)s",
     )
     from pointtraj.reconstruct.cli import load_reconstruct_config
-    from pointtraj.workdir import parse_frames
     from pointtraj.reconstruct.track import reconstruct_capture
     from pointtraj.session import Capture
+    from pointtraj.workdir import parse_frames
 
     if args.board is not None and not (args.capture / "rig.toml").is_file():
         make_caliscope_capture(args.board, args.capture)
