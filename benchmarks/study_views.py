@@ -21,6 +21,15 @@ of the views it marks occluded that the ground truth sees (support: marked views
 points), and the share of truly occluded in-image views it marks (support: those views). The
 tracker applies it to the frame's candidate points before it drops those seen by fewer than
 ``min_views`` cameras; the stored points are the survivors, so this is an approximation.
+
+Baseline on the demo (``pointtraj demo``, 60 frames, ring8; defaults; 6 s): view recall 0.496
+(69141 true views), precision 0.742 (46166 observed views), 3.01 true / 2.01 observed cameras per
+actor point-frame (22976), >= 3 views observed on 0.8 % of the 18347 actor point-frames truly
+seen by >= 3, 99.3 % of 28325 point-frames observed in exactly 2 cameras, median actor
+trajectory 7 frames (1608) against a ground-truth visible run of 7 (10264 runs; 13 with the
+stored flags), 3D error median / p90 8.2 / 24.3 mm with 2 views (22788), 3.4 / 7.7 mm with 3
+(165), 2.6 / 6.4 mm with 4+ (23); the occlusion test marks 65130 views of actor points of which
+7.7 % are truly visible, and marks 52.4 % of the 114667 truly occluded in-image views.
 """
 
 from __future__ import annotations
