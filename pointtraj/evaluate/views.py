@@ -58,6 +58,7 @@ __all__ = [
     "FrameTruth",
     "frame_truth",
     "true_visibility",
+    "nearest_sample",
     "view_audit",
     "false_occlusion_rate",
 ]
