@@ -7,6 +7,8 @@
 * **summary**: trajectories, their lengths and density, reprojection errors;
 * **ground truth** (synthetic captures only): 3D error against the rendered surface, and label
   accuracy (overall, per class, confusion) of the graph cut and of the argmax of each pooling;
+* **views** (synthetic captures only): the cameras that keep each point against those that
+  see it (:mod:`pointtraj.evaluate.views`, issue #20);
 * **temporal consistency** of the semantic map (the paper's Table 1);
 * **affinity effectiveness** (the paper's Figure 6): label disagreement of neighbour pairs by
   distance, all ε_s-neighbours against SE(3)-affinity neighbours;
@@ -356,6 +358,75 @@ def _ground_truth_section(
     return Section("Ground truth", "\n".join(lines), figures)
 
 
+#: Keys of the view audit (:mod:`pointtraj.evaluate.views`) that the report keeps.
+VIEW_KEYS = (
+    "recall",
+    "precision",
+    "true_per_point",
+    "observed_per_point",
+    "per_point",
+    "three_view_share",
+    "two_view_share",
+    "trajectory_length.median",
+    "trajectory_length",
+    "visible_run.median",
+    "visible_run",
+    "radius_m",
+    "depth_tol_m",
+    "visibility_threshold",
+)
+
+
+def _views_section(capture: Path, traj, metrics: dict, progress) -> Section:
+    """Issue #20's view audit: the cameras kept for each point against those that see it.
+
+    Adds ``gt.views.<key>`` and ``gt.views.<key>.support`` for the keys of :data:`VIEW_KEYS`.
+    """
+    from ..reconstruct.track import ReconstructConfig
+    from .views import view_audit
+
+    step = _tick(progress, "evaluate: view audit", traj.num_frames)
+    audit = view_audit(
+        capture,
+        traj,
+        visibility_threshold=ReconstructConfig().visibility_threshold,
+        progress=step,
+        errors=False,
+    )
+    full = audit.to_metrics()
+    keep = {f"gt.views.{k}" for k in VIEW_KEYS} | {f"gt.views.{k}.support" for k in VIEW_KEYS}
+    m = {k: v for k, v in full.items() if k in keep}
+    metrics.update(m)
+    body = (
+        "Which cameras keep each point, against the cameras that see it (issue #20). A "
+        f"point-frame is on an actor when its nearest ground-truth surface sample is within "
+        f"{100 * audit.radius:.0f} cm; a view is truly visible when the camera's depth map sees "
+        f"that sample (within {100 * audit.depth_tol:.0f} cm at its pixel), and observed when "
+        f"the point's visibility there exceeds {audit.visibility_threshold:g}.\n\n"
+        "| figure | value | support |\n|---|---|---|\n"
+        f"| view recall (observed of truly visible views) | {_fmt(m['gt.views.recall'], 3)} | "
+        f"{m['gt.views.recall.support']} views |\n"
+        f"| view precision (truly visible of observed views) | "
+        f"{_fmt(m['gt.views.precision'], 3)} | {m['gt.views.precision.support']} views |\n"
+        f"| cameras per actor point-frame: true / observed | "
+        f"{_fmt(m['gt.views.true_per_point'], 2)} / {_fmt(m['gt.views.observed_per_point'], 2)}"
+        f" | {m['gt.views.per_point.support']} point-frames |\n"
+        f"| observed in >= 3 cameras, of those truly visible in >= 3 | "
+        f"{_fmt(100 * m['gt.views.three_view_share'], 1)} % | "
+        f"{m['gt.views.three_view_share.support']} point-frames |\n"
+        f"| observed in exactly 2 cameras, of all point-frames | "
+        f"{_fmt(100 * m['gt.views.two_view_share'], 1)} % | "
+        f"{m['gt.views.two_view_share.support']} point-frames |\n"
+        f"| median length of trajectories on the actors (frames) | "
+        f"{_fmt(m['gt.views.trajectory_length.median'], 0)} | "
+        f"{m['gt.views.trajectory_length.support']} trajectories |\n"
+        f"| median ground-truth run visible in >= 2 cameras (frames) | "
+        f"{_fmt(m['gt.views.visible_run.median'], 0)} | "
+        f"{m['gt.views.visible_run.support']} runs |\n"
+    )
+    return Section("Views", body)
+
+
 def _temporal_section(smap, folder: Path, metrics: dict, labelled=None) -> Section:
     """The paper's Table 1; over the labelled trajectories when ``labelled`` (M,) is given."""
     fps = smap.fps
@@ -645,6 +716,8 @@ def evaluate_work(
         notes.append(
             "The capture has no ground truth (a real capture): ground-truth metrics skipped."
         )
+    if gt:
+        sections.append(_views_section(cap, traj, metrics, progress))
     if smap is not None:
         labelled = None
         if labels is not None and len(labels.labels) == smap.num_trajectories:

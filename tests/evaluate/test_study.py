@@ -54,9 +54,13 @@ def test_evaluate_writes_the_report(gt_work):
     assert metrics["gt.accuracy.graphcut"] > 0.45
     assert metrics["gt.accuracy.view_argmax"] > 0.45
     assert set(metrics) >= {"validity.view.1cams", "validity.average.3cams"}
+    # The view audit of the ground truth itself: it keeps the views the ground truth sees.
+    assert metrics["gt.views.recall"] > 0.95 and metrics["gt.views.recall.support"] > 100
+    assert metrics["gt.views.two_view_share.support"] == metrics["trajectories.point_frames"]
     assert all(0 <= metrics[f"validity.view.{n}cams"] <= 1 for n in (1, 2, 3))
     index = (work / "report" / "index.md").read_text(encoding="utf-8")
     assert "## Ground truth" in index and "paper's Table 1" in index
+    assert "## Views" in index and "| view recall" in index
     for png in ("confusion.png", "affinity.png", "validity.png"):
         assert (work / "report" / png).stat().st_size > 1000
     lines = headline(saved)
