@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -19,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .atomic import atomic_path, save_npz_atomic
+from .atomic import atomic_path, save_npz_atomic, verify_file
 from .errors import FileFormatError, ValidationError, check_array
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -41,6 +42,121 @@ def quantize_visibility(v: np.ndarray) -> np.ndarray:
 def dequantize_visibility(q: np.ndarray) -> np.ndarray:
     """uint8 visibility back to float32 probabilities in [0, 1]."""
     return np.asarray(q, dtype=np.float32) * np.float32(1.0 / 255.0)
+
+
+#: A view counts as observed where the stored visibility exceeds this (the tracker's default
+#: ``visibility_threshold``, 0.05, quantised).
+OBSERVED_MIN = 13
+
+
+def view_counts(visibility: np.ndarray) -> np.ndarray:
+    """Cameras observing each point-frame (uint8 visibility above :data:`OBSERVED_MIN`).
+
+    Parameters
+    ----------
+    visibility : (P, C) uint8 ndarray
+
+    Returns
+    -------
+    (P,) uint8 ndarray
+        A point-frame with 3 or more is *verified*: its views check each other (a two-view
+        point always agrees with itself).
+    """
+    return np.count_nonzero(np.asarray(visibility) >= OBSERVED_MIN, axis=1).astype(np.uint8)
+
+
+def frame_pointcloud(
+    xyz: np.ndarray,
+    color: np.ndarray,
+    visibility: np.ndarray,
+    track_id: np.ndarray,
+    label: np.ndarray | None = None,
+) -> o3d.t.geometry.PointCloud:
+    """One frame's points as an Open3D point cloud with pointtraj's attributes.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float ndarray
+    color : (N, 3) uint8 ndarray
+    visibility : (N, C) uint8 ndarray
+        Quantised visibility (:func:`quantize_visibility`).
+    track_id : (N,) int ndarray
+    label : (N,) int ndarray, optional
+
+    Returns
+    -------
+    open3d.t.geometry.PointCloud
+        ``positions`` (N, 3) float32, ``colors`` (N, 3) float32 in [0, 1], ``visibility``
+        (N, C) float32, ``num_views`` (N, 1) uint8 (:func:`view_counts`), ``verified`` (N, 1)
+        uint8 (1 where ``num_views >= 3``), ``track_id`` (N, 1) int64 and ``label`` (N, 1)
+        int32.
+    """
+    import open3d as o3d
+
+    pcd = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(xyz, np.float32)))
+    pcd.point.colors = o3d.core.Tensor(np.asarray(color, np.float32) / 255.0)
+    pcd.point.visibility = o3d.core.Tensor(np.ascontiguousarray(dequantize_visibility(visibility)))
+    views = view_counts(visibility)
+    pcd.point.num_views = o3d.core.Tensor(views[:, None])
+    pcd.point.verified = o3d.core.Tensor((views >= 3).astype(np.uint8)[:, None])
+    pcd.point.track_id = o3d.core.Tensor(np.asarray(track_id, np.int64)[:, None])
+    if label is not None:
+        pcd.point.label = o3d.core.Tensor(np.asarray(label, np.int32)[:, None])
+    return pcd
+
+
+def load_cloud(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a ``clouds/<t>.ply`` that pointtraj wrote back into arrays.
+
+    Parameters
+    ----------
+    path : path-like
+
+    Returns
+    -------
+    dict
+        ``xyz`` (N, 3) float32, ``color`` (N, 3) uint8, ``visibility`` (N, C) float32 (the
+        PLY's ``visibility_0 .. visibility_{C-1}`` restacked), ``track_id`` (N,) int64, and,
+        where present, ``num_views`` (N,) uint8, ``verified`` (N,) bool and ``label`` (N,) int32.
+
+    Raises
+    ------
+    FileFormatError
+        If the file is missing, unreadable or lacks positions or track ids.
+    """
+    import open3d as o3d
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileFormatError(path, "no such file")
+    problem = verify_file(path, ".ply")
+    if problem is not None:
+        raise FileFormatError(path, f"not a complete PLY file ({problem})")
+    pcd = o3d.t.io.read_point_cloud(str(path))
+    attrs = {k: pcd.point[k].numpy() for k in pcd.point}
+    if "positions" not in attrs or "track_id" not in attrs:
+        raise FileFormatError(path, "not a pointtraj cloud (no positions or track_id)")
+    n = len(attrs["positions"])
+    cols = sorted(
+        (k for k in attrs if re.fullmatch(r"visibility_\d+", k)), key=lambda k: int(k[11:])
+    )
+    out = {
+        "xyz": attrs["positions"].astype(np.float32),
+        "color": np.clip(np.rint(attrs.get("colors", np.zeros((n, 3))) * 255), 0, 255).astype(
+            np.uint8
+        ),
+        "visibility": np.hstack([attrs[k] for k in cols]).astype(np.float32)
+        if cols
+        else np.zeros((n, 0), np.float32),
+        "track_id": attrs["track_id"].reshape(-1).astype(np.int64),
+    }
+    if "num_views" in attrs:
+        out["num_views"] = attrs["num_views"].reshape(-1).astype(np.uint8)
+    if "verified" in attrs:
+        out["verified"] = attrs["verified"].reshape(-1).astype(bool)
+    if "label" in attrs:
+        out["label"] = attrs["label"].reshape(-1).astype(np.int32)
+    return out
 
 
 def _empty_ply_header(pcd: o3d.t.geometry.PointCloud) -> str:
@@ -403,9 +519,8 @@ class Trajectories:
     ) -> o3d.t.geometry.PointCloud:
         """Frame ``t`` as an ``open3d.t.geometry.PointCloud``.
 
-        Attributes: ``positions`` (N, 3) float32, ``colors`` (N, 3) float32 in [0, 1],
-        ``visibility`` (N, C) float32, ``track_id`` (N, 1) int64, and ``label`` (N, 1) int32 when
-        ``labels`` (M,) is given.
+        Attributes as :func:`frame_pointcloud` gives them (``label`` when ``labels`` (M,) is
+        given).
 
         Parameters
         ----------
@@ -415,22 +530,17 @@ class Trajectories:
         colors : (M, 3) uint8 ndarray, optional
             A colour per trajectory, overriding the per-point colours (e.g. label colours).
         """
-        import open3d as o3d
-
         fs = self.frame(t)
-        pcd = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(fs.xyz)))
         col = self.color[fs.rows] if colors is None else np.asarray(colors, np.uint8)[fs.track_id]
-        pcd.point.colors = o3d.core.Tensor(col.astype(np.float32) / 255.0)
-        pcd.point.visibility = o3d.core.Tensor(np.ascontiguousarray(fs.visibility))
-        pcd.point.track_id = o3d.core.Tensor(fs.track_id.astype(np.int64)[:, None])
+        lab = None
         if labels is not None:
             lab = np.asarray(labels, dtype=np.int32)
             if lab.shape != (self.num_trajectories,):
                 raise ValidationError(
                     f"labels: expected shape ({self.num_trajectories},), got {lab.shape}"
                 )
-            pcd.point.label = o3d.core.Tensor(lab[fs.track_id][:, None])
-        return pcd
+            lab = lab[fs.track_id]
+        return frame_pointcloud(fs.xyz, col, self.visibility[fs.rows], fs.track_id, lab)
 
     def write_frame_ply(self, t: int, path: str | os.PathLike, **kwargs) -> None:
         """Write frame ``t`` as a PLY with its attributes, atomically (see :meth:`to_pointcloud`)."""

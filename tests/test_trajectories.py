@@ -147,6 +147,31 @@ def test_ply_attributes_survive(store, tmp_path):
     np.testing.assert_allclose(pcd.point.colors.numpy() * 255, tr.color[fs.rows], atol=1e-3)
 
 
+def test_load_cloud_round_trips_the_view_counts(store, tmp_path):
+    """The per-point view count and the verified flag (>= 3 views) survive the PLY."""
+    from pointtraj.trajectories import load_cloud, view_counts
+
+    tr = store[0]
+    labels = np.arange(tr.num_trajectories, dtype=np.int64) % 5
+    for t in range(tr.num_frames):
+        path = tmp_path / f"{t:06d}.ply"
+        tr.write_frame_ply(t, path, labels=labels)
+        cloud = load_cloud(path)
+        fs = tr.frame(t)
+        views = (tr.visibility[fs.rows] >= 13).sum(axis=1)
+        np.testing.assert_array_equal(cloud["num_views"], views)
+        np.testing.assert_array_equal(view_counts(tr.visibility[fs.rows]), views)
+        np.testing.assert_array_equal(cloud["verified"], views >= 3)
+        np.testing.assert_array_equal(cloud["track_id"], fs.track_id)
+        np.testing.assert_array_equal(cloud["label"], labels[fs.track_id])
+        np.testing.assert_array_equal(cloud["visibility"], fs.visibility)
+        assert cloud["track_id"].dtype == np.int64
+    assert {2, 3} <= set(np.unique(view_counts(tr.visibility)))  # both kinds occur
+    path.write_bytes(path.read_bytes()[:-7])
+    with pytest.raises(FileFormatError, match="not a complete PLY file"):
+        load_cloud(path)
+
+
 def test_pointcloud_in_memory(store):
     tr = store[0]
     pcd = tr.to_pointcloud(3)

@@ -29,9 +29,10 @@ from ..atomic import save_npz_atomic
 from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError, check_array
 from ..npzfile import load_npz
-from ..trajectories import Trajectories, quantize_visibility, write_cloud_ply
+from ..trajectories import Trajectories, frame_pointcloud, quantize_visibility, write_cloud_ply
 from .densify import DensifyConfig
 from .matching import MatchingConfig, MultiViewTracks, match_frame, resolve_ambiguous
+from .stitch import StitchConfig, stitch_trajectories
 from .views import ViewsConfig, discover_views
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -55,6 +56,13 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 STATE_FORMAT_VERSION = 1
+
+#: Why a trajectory ends: its flow succeeded in fewer than ``min_views`` cameras (lost by
+#: Lucas-Kanade or the forward-backward check, or out of the images); the RANSAC
+#: re-triangulation failed or its error exceeded ``max_mean_error_px``; the occlusion test hid
+#: views it had; or fewer than ``min_views`` of its re-triangulated views kept a visibility
+#: above ``visibility_threshold``.
+STOP_REASONS = ("flow", "triangulation", "occlusion", "visibility")
 
 
 @dataclass(frozen=True)
@@ -132,6 +140,9 @@ class ReconstructConfig:
         View discovery by a plane sweep, at any baseline: every point is searched in the
         cameras that should see it and that flow (``expand_views``) cannot reach (table
         ``[reconstruct.views]``; :mod:`pointtraj.reconstruct.views`).
+    stitch : StitchConfig
+        Joining a trajectory that ended to one born where it would have gone, across gaps of
+        a frame or two (table ``[reconstruct.stitch]``; :mod:`pointtraj.reconstruct.stitch`).
     """
 
     sigma_px: float = 1.0
@@ -159,6 +170,7 @@ class ReconstructConfig:
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     views: ViewsConfig = field(default_factory=ViewsConfig)
+    stitch: StitchConfig = field(default_factory=StitchConfig)
 
     def __post_init__(self) -> None:
         checks = {
@@ -198,6 +210,8 @@ class ReconstructConfig:
             raise ValidationError("ReconstructConfig.densify must be a DensifyConfig")
         if not isinstance(self.views, ViewsConfig):
             raise ValidationError("ReconstructConfig.views must be a ViewsConfig")
+        if not isinstance(self.stitch, StitchConfig):
+            raise ValidationError("ReconstructConfig.stitch must be a StitchConfig")
 
     def triangulation(self) -> TriangulationConfig:
         """The matching :class:`TriangulationConfig`."""
@@ -647,6 +661,8 @@ class Tracker:
             )
         self._prev_grey: list[np.ndarray] | None = None
         self._first_frame = first_frame
+        #: Why trajectories ended, counted over the frames stepped (:data:`STOP_REASONS`).
+        self.stops: dict[str, int] = dict.fromkeys(STOP_REASONS, 0)
 
     def set_previous_images(self, images: Sequence[np.ndarray]) -> None:
         """Give the images of ``state.frame`` (needed to resume tracking)."""
@@ -740,14 +756,11 @@ class Tracker:
         if cfg.views.enabled and len(xyz):
             xyz, vis, err, pix, keep = self._discover(t, prepared, xyz, vis, err, pix, old_ids)
             xyz, vis, err, pix = xyz[keep], vis[keep], err[keep], pix[:, keep]
-        if cfg.occlusion_depth_m > 0 and len(xyz):
-            from .triangulate import occlusion_test
-
-            occ = occlusion_test(
-                rig, xyz, cfg.occlusion_depth_m, cell_px=cfg.occlusion_cell_px
-            )  # (N, C)
-            vis = np.where(occ, np.float32(0), vis)
+        enough = np.count_nonzero(vis > cfg.visibility_threshold, axis=1) >= cfg.min_views
+        if len(xyz):
+            vis = np.where(self._occluded(xyz, vis), np.float32(0), vis)
         seen = np.count_nonzero(vis > cfg.visibility_threshold, axis=1) >= cfg.min_views
+        self._count_stops(obs, keep_old, enough[:n_old], seen[:n_old])
         n_new = int(seen[n_old:].sum())
         ids = np.concatenate([old_ids[seen[:n_old]], st.next_id + np.arange(n_new)])
         xyz, vis, err, pix = xyz[seen], vis[seen], err[seen], pix[:, seen]
@@ -781,20 +794,9 @@ class Tracker:
         pix: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """View expansion (:func:`expand_views`) and re-triangulation of the points it grew."""
-        from .triangulate import occlusion_test
-
         cfg = self.config
         proj = self.rig.project(xyz)
-        cand = proj.in_image
-        if cfg.occlusion_depth_m > 0:
-            occ = occlusion_test(
-                self.rig,
-                xyz,
-                cfg.occlusion_depth_m,
-                cell_px=cfg.occlusion_cell_px,
-                projection=proj,
-            )
-            cand = cand & ~occ.T
+        cand = proj.in_image & ~self._occluded(xyz, vis, proj).T
         grown = expand_views(
             self.rig,
             grey,
@@ -825,17 +827,10 @@ class Tracker:
         ``views.retry_every`` frames, staggered by id and camera. Returns the points and which
         to keep (new two-view points that a searched third camera did not confirm are not).
         """
-        from .triangulate import occlusion_test
-
         cfg = self.config
         C, N, n_old = len(self.rig), len(xyz), len(old_ids)
         proj = self.rig.project(xyz)
-        cand = proj.in_image.copy()
-        if cfg.occlusion_depth_m > 0:
-            occ = occlusion_test(
-                self.rig, xyz, cfg.occlusion_depth_m, cell_px=cfg.occlusion_cell_px, projection=proj
-            )
-            cand &= ~occ.T
+        cand = proj.in_image & ~self._occluded(xyz, vis, proj).T
         if cfg.views.retry_every > 1 and n_old:
             due = (old_ids[None, :] + np.arange(C)[:, None] + t) % cfg.views.retry_every == 0
             cand[:, :n_old] &= due
@@ -912,6 +907,37 @@ class Tracker:
         keep = self._alive(tri) & (np.count_nonzero(tri.inliers, axis=0) >= cfg.min_views_new)
         logger.debug("densify: %d of %d new points kept", int(keep.sum()), dense.shape[1])
         return tri, dense, keep
+
+    def _count_stops(
+        self, obs: np.ndarray, kept: np.ndarray, enough: np.ndarray, seen: np.ndarray
+    ) -> None:
+        """Count why the live trajectories that ended at this frame ended.
+
+        ``obs`` (C, N, 2): their flow results; ``kept`` (N,): alive after re-triangulation;
+        ``enough`` and ``seen`` (kept points): enough views before and after the occlusion test.
+        """
+        flows = np.count_nonzero(np.all(np.isfinite(obs), axis=2), axis=0)  # (N,)
+        lost_flow = flows < self.config.min_views
+        self.stops["flow"] += int(lost_flow.sum())
+        self.stops["triangulation"] += int((~lost_flow & ~kept).sum())
+        self.stops["occlusion"] += int((enough & ~seen).sum())
+        self.stops["visibility"] += int((~enough).sum())
+
+    def _occluded(self, xyz: np.ndarray, vis: np.ndarray, projection=None) -> np.ndarray:
+        """(N, C) views of the frame's points hidden behind its own surface (all False when
+        the test is off): :func:`~.triangulate.occlusion_test`."""
+        from .triangulate import occlusion_test
+
+        cfg = self.config
+        if cfg.occlusion_depth_m <= 0 or len(xyz) == 0:
+            return np.zeros((len(xyz), len(self.rig)), bool)
+        return occlusion_test(
+            self.rig,
+            xyz,
+            cfg.occlusion_depth_m,
+            cell_px=cfg.occlusion_cell_px,
+            projection=projection,
+        )
 
     def _alive(self, tri: Triangulation) -> np.ndarray:
         cfg = self.config
@@ -1113,7 +1139,8 @@ def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
 
 
 def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
-    """Write one frame's points as a PLY with ``visibility`` and ``track_id`` (int32) attributes.
+    """Write one frame's points as a PLY (:func:`~pointtraj.trajectories.frame_pointcloud`'s
+    attributes, ``track_id`` as int32).
 
     Parameters
     ----------
@@ -1122,13 +1149,9 @@ def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
     """
     import open3d as o3d
 
-    pcd = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(record.xyz)))
-    pcd.point.colors = o3d.core.Tensor(record.color.astype(np.float32) / 255.0)
-    pcd.point.visibility = o3d.core.Tensor(
-        np.ascontiguousarray(record.visibility.astype(np.float32) / 255.0)
-    )
+    pcd = frame_pointcloud(record.xyz, record.color, record.visibility, record.ids)
     # PLY has no 64-bit integers: track ids are written as int32 (M < 2^31)
-    pcd.point.track_id = o3d.core.Tensor(record.ids.astype(np.int32)[:, None])
+    pcd.point.track_id = pcd.point.track_id.to(o3d.core.Dtype.Int32)
     write_cloud_ply(path, pcd)
 
 
@@ -1208,6 +1231,17 @@ def reconstruct_capture(
         records.append(rec)
         if on_frame is not None:
             on_frame(rec)
+    ended = sum(tracker.stops.values())
+    if ended:
+        logger.info(
+            "%d trajectories ended in the frames reconstructed now: %s",
+            ended,
+            ", ".join(f"{k} {100 * v / ended:.1f} %" for k, v in tracker.stops.items()),
+        )
     traj = assemble_trajectories(records, names, float(capture.fps), T)
-    traj.save(work / "trajectories.npz")
-    return traj
+    stitched, new_id = stitch_trajectories(traj, cfg.stitch)
+    if stitched is not traj:  # the clouds carry the stitched trajectories' ids
+        for t in frames:
+            stitched.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
+    stitched.save(work / "trajectories.npz")
+    return stitched

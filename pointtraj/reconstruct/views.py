@@ -77,6 +77,10 @@ class ViewsConfig:
     retry_every : int
         A tracked point's unobserved cameras are searched every this many frames (new points
         at once).
+    normal : {"neighbors", "bisector"}
+        The swept plane's normal: fitted to the point's neighbours, or the bisector of the
+        directions to the reference and the searched camera (with the cameras observing the
+        point deciding which cameras face it).
     confirm_new : bool
         A new point left with two views is dropped when another camera was searched for it
         with a usable patch and did not confirm it (two views always agree with a wrong match
@@ -84,7 +88,7 @@ class ViewsConfig:
     """
 
     enabled: bool = True
-    min_ncc: float = 0.8
+    min_ncc: float = 0.7
     min_margin: float = 0.05
     peak_width: int = 2
     min_std: float = 3.0
@@ -94,10 +98,11 @@ class ViewsConfig:
     depth_sigmas: float = 3.0
     min_depth_range_m: float = 0.01
     max_depth_range_m: float = 0.08
-    max_incidence_deg: float = 75.0
+    max_incidence_deg: float = 80.0
     normal_neighbors: int = 12
-    retry_every: int = 3
+    retry_every: int = 1
     confirm_new: bool = True
+    normal: str = "neighbors"
 
     def __post_init__(self) -> None:
         checks = {
@@ -114,6 +119,7 @@ class ViewsConfig:
             "max_incidence_deg": 0 < self.max_incidence_deg <= 90,
             "normal_neighbors": self.normal_neighbors >= 3,
             "retry_every": self.retry_every >= 1,
+            "normal": self.normal in ("neighbors", "bisector"),
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
@@ -265,7 +271,11 @@ def discover_views(
     centres = np.stack([cam.C for cam in rig])
     to_cams = (centres[:, None, :] - X[None]).astype(np.float32)  # (C, N, 3)
     to_cams /= np.linalg.norm(to_cams, axis=2, keepdims=True)
-    normals = point_normals(rig, X, observed, cfg.normal_neighbors)
+    if cfg.normal == "neighbors":
+        normals = point_normals(rig, X, observed, cfg.normal_neighbors)
+    else:  # facing the cameras that observe the point
+        normals = np.einsum("cn,cnk->nk", observed.astype(np.float32), to_cams)
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     incidence = np.einsum("cnk,nk->cn", to_cams, normals)  # cos of the incidence angle
     cand &= incidence >= np.cos(np.radians(cfg.max_incidence_deg))
     if not cand.any():
@@ -287,7 +297,17 @@ def discover_views(
         r, c = int(rs[group[0]]), int(cs[group[0]])
         n = ns[group]
         ok, usable, Xb = _sweep(
-            rig, images, r, c, X[n], normals[n], ideal[r, n], half[n], offsets, steps, cfg
+            rig,
+            images,
+            r,
+            c,
+            X[n],
+            _plane_normals(cfg, normals[n], to_cams[r, n], to_cams[c, n]),
+            ideal[r, n],
+            half[n],
+            offsets,
+            steps,
+            cfg,
         )
         searched[c, n] = usable
         if ok.any():
@@ -298,6 +318,17 @@ def discover_views(
             found += sel.size
     logger.debug("view discovery: %d of %d candidate views found", found, len(cs))
     return out, searched
+
+
+def _plane_normals(
+    cfg: ViewsConfig, normals: np.ndarray, to_r: np.ndarray, to_c: np.ndarray
+) -> np.ndarray:
+    """The normals of the planes swept: the points' own, or the bisector of the directions to
+    the reference and the searched camera."""
+    if cfg.normal != "bisector":
+        return normals
+    b = to_r.astype(np.float64) + to_c
+    return b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
 
 
 def _sweep(
