@@ -33,28 +33,6 @@ from pointtraj.semantics.semantic_map import SemanticMap
 from pointtraj.trajectories import Trajectories
 from pointtraj.workdir import WorkFolder
 
-TINY = """
-name = "tiny"
-capture = "cap"
-work = "work"
-
-[synth]
-preset = "tiny4"
-frames = 3
-points_per_part = 40
-
-[semantics]
-recognizer = "simulated"
-options = { noise = "low" }
-
-[affinity]
-tau = 0.02
-
-[render]
-size = [320, 256]
-tail = 2
-"""
-
 #: The outputs whose content a resumed run must reproduce, and how to read each.
 OUTPUTS = (
     "trajectories.npz",
@@ -101,12 +79,9 @@ def _metrics(work: Path) -> dict:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> Path:
+def reference(tiny_reference) -> Path:
     """A complete tiny pipeline run: its folder holds ``pipe.toml``, ``cap/`` and ``work/``."""
-    root = tmp_path_factory.mktemp("faults")
-    (root / "pipe.toml").write_text(TINY, encoding="utf-8")
-    run_pipeline(load_pipeline(root / "pipe.toml", base=root))
-    return root
+    return tiny_reference
 
 
 def _copy(reference: Path, dest: Path) -> Path:

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import TINY
 
 from pointtraj.cli import main
 from pointtraj.errors import FileFormatError, ValidationError
@@ -24,28 +25,6 @@ from pointtraj.stages import SynthConfig
 from pointtraj.trajectories import Trajectories
 
 ROOT = Path(__file__).resolve().parents[1]
-
-TINY = """
-name = "tiny"
-capture = "cap"
-work = "work"
-
-[synth]
-preset = "tiny4"
-frames = 3
-points_per_part = 40
-
-[semantics]
-recognizer = "simulated"
-options = { noise = "low" }
-
-[affinity]
-tau = 0.02
-
-[render]
-size = [320, 256]
-tail = 2
-"""
 
 
 def _write(tmp_path: Path, text: str) -> Path:

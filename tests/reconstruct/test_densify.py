@@ -17,10 +17,10 @@ from pointtraj.reconstruct.track import ReconstructConfig, Tracker
 from pointtraj.reconstruct.triangulate import triangulate_points
 
 
-def wide_rig(w: int = 480, h: int = 360) -> CameraRig:
-    """Three cameras 35 degrees apart around the plane z = 0 (70 degrees end to end)."""
+def wide_rig(w: int = 480, h: int = 360, angles=(-35.0, 0.0, 35.0)) -> CameraRig:
+    """Cameras around the plane z = 0 at these angles (default 35 degrees apart)."""
     cams = []
-    for i, deg in enumerate((-35.0, 0.0, 35.0)):
+    for i, deg in enumerate(angles):
         a = np.deg2rad(deg)
         C = [2.0 * np.sin(a), -0.3, 2.0 * np.cos(a)]
         cams.append(Camera.look_at(f"c{i}", C, [0, 0, 0], (w, h), 400.0, up=[0, -1, 0]))

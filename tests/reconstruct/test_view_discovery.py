@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from test_densify import wide_rig
 from test_track import make_texture, render_plane
 
 from pointtraj.camera import Camera, CameraRig
@@ -18,14 +19,9 @@ from pointtraj.reconstruct.track import ReconstructConfig, Tracker, expand_views
 from pointtraj.reconstruct.views import ViewsConfig, depth_uncertainty, discover_views
 
 
-def sixty_rig(w: int = 480, h: int = 360) -> CameraRig:
+def sixty_rig() -> CameraRig:
     """Three cameras at -60, 0 and +60 degrees around the plane z = 0 (60 and 120 apart)."""
-    cams = []
-    for i, deg in enumerate((-60.0, 0.0, 60.0)):
-        a = np.deg2rad(deg)
-        C = [2.0 * np.sin(a), -0.3, 2.0 * np.cos(a)]
-        cams.append(Camera.look_at(f"c{i}", C, [0, 0, 0], (w, h), 400.0, up=[0, -1, 0]))
-    return CameraRig(cams)
+    return wide_rig(angles=(-60.0, 0.0, 60.0))
 
 
 @pytest.fixture(scope="module")
