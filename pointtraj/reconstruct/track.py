@@ -831,8 +831,9 @@ class Tracker:
         C, N, n_old = len(self.rig), len(xyz), len(old_ids)
         proj = self.rig.project(xyz)
         cand = proj.in_image & ~self._occluded(xyz, vis, proj).T
-        if cfg.views.retry_every > 1 and n_old:
-            due = (old_ids[None, :] + np.arange(C)[:, None] + t) % cfg.views.retry_every == 0
+        every = cfg.views.retry_every or max(1, C // 16)
+        if every > 1 and n_old:
+            due = (old_ids[None, :] + np.arange(C)[:, None] + t) % every == 0
             cand[:, :n_old] &= due
         grown, searched = discover_views(
             self.rig, images, xyz, pix, cand, cfg.views, sigma_px=cfg.sigma_px

@@ -76,7 +76,9 @@ class ViewsConfig:
         Neighbours of a point that its surface normal is fitted to.
     retry_every : int
         A tracked point's unobserved cameras are searched every this many frames (new points
-        at once).
+        at once); 0 derives it from the rig, ``max(1, C // 16)`` for C cameras, so that a
+        point costs about as much a frame on a 69-camera dome (every 4th frame) as on an
+        8-camera ring (every frame).
     normal : {"neighbors", "bisector"}
         The swept plane's normal: fitted to the point's neighbours, or the bisector of the
         directions to the reference and the searched camera (with the cameras observing the
@@ -100,7 +102,7 @@ class ViewsConfig:
     max_depth_range_m: float = 0.08
     max_incidence_deg: float = 80.0
     normal_neighbors: int = 12
-    retry_every: int = 1
+    retry_every: int = 0
     confirm_new: bool = True
     normal: str = "neighbors"
 
@@ -118,7 +120,7 @@ class ViewsConfig:
             "max_depth_range_m": self.max_depth_range_m >= self.min_depth_range_m,
             "max_incidence_deg": 0 < self.max_incidence_deg <= 90,
             "normal_neighbors": self.normal_neighbors >= 3,
-            "retry_every": self.retry_every >= 1,
+            "retry_every": self.retry_every >= 0,
             "normal": self.normal in ("neighbors", "bisector"),
         }
         bad = [k for k, ok in checks.items() if not ok]
@@ -290,15 +292,28 @@ def discover_views(
     offsets = np.stack(np.meshgrid(off, off), axis=-1).reshape(-1, 2)  # (P, 2)
     steps = np.linspace(-1.0, 1.0, cfg.depth_steps)  # (D,) in units of the half-range
     found = 0
-    pair = rs * C + cs
+    # Two passes, so that each camera's prepared image is needed in one stretch (the prepared
+    # images are kept within a memory budget): reference patches camera by camera, then the
+    # sweeps camera by searched camera.
+    K = len(cs)
+    ref = np.zeros((K, len(offsets)), np.float32)
+    textured = np.zeros(K, bool)
+    by_ref = np.argsort(rs, kind="stable")
+    for group in np.split(by_ref, np.flatnonzero(np.diff(rs[by_ref])) + 1):
+        r = int(rs[group[0]])
+        patch = ideal[r, ns[group]][:, None, :] + offsets[None]  # (k, P, 2)
+        z, std = _zscore(_sample(images[r], patch[..., 0], patch[..., 1]))
+        ok = np.isfinite(std) & (std >= cfg.min_std) & np.all(np.isfinite(z), axis=1)
+        ref[group] = np.where(ok[:, None], z, 0.0)
+        textured[group] = ok
+    pair = cs * C + rs
     order = np.argsort(pair, kind="stable")
-    bounds = np.flatnonzero(np.diff(pair[order])) + 1
-    for group in np.split(order, bounds):
-        r, c = int(rs[group[0]]), int(cs[group[0]])
+    for group in np.split(order, np.flatnonzero(np.diff(pair[order])) + 1):
+        c, r = int(cs[group[0]]), int(rs[group[0]])
         n = ns[group]
         ok, usable, Xb = _sweep(
             rig,
-            images,
+            images[c],
             r,
             c,
             X[n],
@@ -307,6 +322,8 @@ def discover_views(
             half[n],
             offsets,
             steps,
+            ref[group],
+            textured[group],
             cfg,
         )
         searched[c, n] = usable
@@ -333,7 +350,7 @@ def _plane_normals(
 
 def _sweep(
     rig: CameraRig,
-    images: Sequence[np.ndarray],
+    image: np.ndarray,
     r: int,
     c: int,
     X: np.ndarray,
@@ -342,9 +359,13 @@ def _sweep(
     half: np.ndarray,
     offsets: np.ndarray,
     steps: np.ndarray,
+    ref: np.ndarray,
+    textured: np.ndarray,
     cfg: ViewsConfig,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sweep points seen in reference camera r for camera c.
+    """Sweep points seen in reference camera r for camera c (its prepared ``image``).
+
+    ``ref`` (n, P) are the z-scored reference patches, ``textured`` (n,) those usable.
 
     Returns
     -------
@@ -357,8 +378,7 @@ def _sweep(
     cam = rig[r]
     n = len(X)
     patch = ideal_r[:, None, :] + offsets[None]  # (n, P, 2)
-    ref, std = _zscore(_sample(images[r], patch[..., 0], patch[..., 1]))
-    usable = np.isfinite(std) & (std >= cfg.min_std) & np.all(np.isfinite(ref), axis=1)
+    usable = textured.copy()
     none = (np.zeros(n, bool), np.zeros(n, bool), np.zeros((n, 3)))
     if not usable.any():
         return none
@@ -377,7 +397,7 @@ def _sweep(
     z = z0[:, None] + half[:, None] * steps[None, :]  # (n, D)
     u = np.flatnonzero(usable)
     scores = np.full((n, len(steps)), -1.0)
-    scores[u] = _ncc(images[c], rig[c], cam, rays[u] * w[u, :, None], z[u], ref[u])
+    scores[u] = _ncc(image, rig[c], cam, rays[u] * w[u, :, None], z[u], ref[u])
     D = len(steps)
     best = np.argmax(scores, axis=1)
     top = scores[np.arange(n), best]

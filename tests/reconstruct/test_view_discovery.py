@@ -135,6 +135,6 @@ def test_views_config_from_toml_and_validation():
     cfg = from_mapping(ReconstructConfig, {"views": {"min_ncc": 0.7, "retry_every": 2}})
     assert cfg.views == ViewsConfig(min_ncc=0.7, retry_every=2)
     with pytest.raises(ValidationError, match="ViewsConfig.retry_every"):
-        ViewsConfig(retry_every=0)
+        ViewsConfig(retry_every=-1)
     with pytest.raises(ValueError, match="unknown key"):
         from_mapping(ReconstructConfig, {"views": {"min_nc": 0.7}})
