@@ -19,6 +19,8 @@ with a skeleton) we find the part whose segments lie nearest in 3D and report:
   segments are the skeleton's axes and the surface lies 5-15 cm from them, plus the landmark
   noise; farther points are background or mismatched points that got a body label);
 - the same per trajectory (majority of its frames), and a confusion by part;
+- **views**: the share of the labelled point-frames on the body seen by 3 or more cameras, and
+  the median length of the labelled trajectories;
 - **motion**: the median speed of the trajectories (5 frames or longer) of the labelled
   point-frames on and off the body. Points of the room are static; wrong points that move
   with the person are mismatches on the person.
@@ -86,7 +88,7 @@ def main() -> None:
     from pointtraj.reconstruct.triangulate import triangulate_points
     from pointtraj.semantics.recognizers.bodyparts import BODY_PARTS
     from pointtraj.session import Capture
-    from pointtraj.trajectories import Trajectories
+    from pointtraj.trajectories import Trajectories, view_counts
     from pointtraj.workdir import WorkFolder
 
     wf = WorkFolder(args.work)
@@ -107,7 +109,7 @@ def main() -> None:
     names, owner, pairs = part_segments(BODY_PARTS)
     class_of = {n: labels.class_names.index(n) for n in names if n in labels.class_names}
     part_of_class = {c: names.index(n) for n, c in class_of.items()}
-    rows_lab, rows_near, rows_dist, rows_track = [], [], [], []
+    rows_lab, rows_near, rows_dist, rows_track, rows_views = [], [], [], [], []
     for f, t in enumerate(frames):
         rows = traj.frame_rows(t)
         lab = labels.labels[traj.row_track[rows]]
@@ -127,10 +129,12 @@ def main() -> None:
         rows_near.append(per_part.argmin(axis=1))
         rows_dist.append(per_part.min(axis=1))
         rows_track.append(traj.row_track[rows[body]])
+        rows_views.append(view_counts(traj.visibility[rows[body]]))
     lab = np.concatenate(rows_lab)
     near = np.concatenate(rows_near)
     dist = np.concatenate(rows_dist)
     track = np.concatenate(rows_track)
+    views = np.concatenate(rows_views)
     on = dist <= args.radius
     mirror_idx = np.array([names.index(mirror(n)) for n in names])
     swapped = (mirror_idx[near] == lab) & (mirror_idx[near] != near)
@@ -148,7 +152,11 @@ def main() -> None:
         "distance_to_body_percentiles_10_25_50_75_90_m": np.percentile(dist, [10, 25, 50, 75, 90])
         .round(3)
         .tolist(),
+        "views_3_or_more_on_body": float((views[on] >= 3).mean()),
         "trajectories": int(len(uniq)),
+        "labelled_trajectory_length_median": float(
+            np.median(traj.lengths[np.flatnonzero(labels.labels >= 0)])
+        ),
         "trajectories_majority_agree": float(np.mean(agree_tr > 0.5)),
         "by_part": {},
     }

@@ -94,9 +94,9 @@ class ViewsConfig:
     min_margin: float = 0.05
     peak_width: int = 2
     min_std: float = 3.0
-    patch_size: int = 7
-    patch_spacing_px: float = 1.5
-    depth_steps: int = 15
+    patch_size: int = 5
+    patch_spacing_px: float = 2.0
+    depth_steps: int = 9
     depth_sigmas: float = 3.0
     min_depth_range_m: float = 0.01
     max_depth_range_m: float = 0.08
@@ -284,7 +284,9 @@ def discover_views(
         return out, searched
     cs, ns = np.nonzero(cand)
     rs = _references(to_cams, observed, cs, ns)
-    sigma = depth_uncertainty(rig, X, observed, sigma_px)
+    sigma = np.full(N, np.inf)
+    some = np.unique(ns)  # only the points with a candidate
+    sigma[some] = depth_uncertainty(rig, X[some], observed[:, some], sigma_px)
     half = np.clip(cfg.depth_sigmas * sigma, cfg.min_depth_range_m, cfg.max_depth_range_m)
     ideal = rig.undistort_pixels(np.where(observed[..., None], pix, np.nan))
     h = (cfg.patch_size - 1) / 2
