@@ -158,18 +158,10 @@ class PipelineConfig:
                 f"({', '.join(self.semantics.poolings)})"
             )
 
-    def frame_range(self, num_frames: int) -> range:
-        """The frames to reconstruct of a capture of ``num_frames``.
-
-        Raises
-        ------
-        ValidationError
-            Naming the pipeline file (when known) if ``frames`` lies outside the capture.
-        """
-        from .workdir import parse_frames
-
-        where = "frames" if self.source is None else f"{self.source}: frames"
-        return parse_frames(self.frames, num_frames, where=where)
+    @property
+    def frames_label(self) -> str:
+        """How errors name ``frames``: with the pipeline file, when known."""
+        return "frames" if self.source is None else f"{self.source}: frames"
 
     def with_paths(
         self, capture: str | os.PathLike | None = None, work: str | os.PathLike | None = None
@@ -448,15 +440,15 @@ def _fetch_example(name: str, capture: Path) -> None:
 def _reconstruct(config: PipelineConfig, progress: Progress | None, force: bool) -> None:
     """Reconstruct, resuming an interrupted run of the same settings, else starting afresh."""
     from . import stages
-    from .session import Capture
 
     stages.reconstruct_work(
         config.work,
         config.capture,
         config.reconstruct,
-        config.frame_range(Capture.open(config.capture).num_frames),
+        config.frames,
         on_change="restart",
         force=force,
+        frames_label=config.frames_label,
         progress=progress,
     )
 

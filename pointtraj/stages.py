@@ -199,6 +199,7 @@ def reconstruct_work(
     restart: bool = False,
     on_change: str = "refuse",
     force: bool = False,
+    frames_label: str = "frames",
     progress: Progress | None = None,
 ) -> Trajectories:
     """Reconstruct the capture's trajectories into the work folder, resuming an interrupted run.
@@ -216,6 +217,8 @@ def reconstruct_work(
         set: refuse (the command line's default), or restart (``pointtraj run``'s).
     force : bool
         Use (and clear) a non-empty folder that pointtraj did not make.
+    frames_label : str
+        How errors about ``frames`` name it (``"--frames"``, ``"pipe.toml: frames"``).
     progress : Progress, optional
 
     Returns
@@ -241,7 +244,11 @@ def reconstruct_work(
     cfg = config or ReconstructConfig()
     wf = WorkFolder(work)
     cap = Capture.open(capture)
-    rng = frames if isinstance(frames, range) else parse_frames(frames, int(cap.num_frames))
+    rng = (
+        frames
+        if isinstance(frames, range)
+        else parse_frames(frames, int(cap.num_frames), where=frames_label)
+    )
     foreign = not wf.is_pointtraj()
     wf.claim(force)
     with wf.lock("pointtraj reconstruct"):

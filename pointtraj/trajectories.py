@@ -187,6 +187,7 @@ def write_cloud_ply(path: str | os.PathLike, pcd: o3d.t.geometry.PointCloud) -> 
     path : path-like
     pcd : open3d.t.geometry.PointCloud
         Its attributes become PLY properties (``visibility`` (N, C) as ``visibility_0`` ...).
+        PLY has no 64-bit integers: Int64 attributes (``track_id``) are written as int32.
 
     Raises
     ------
@@ -195,6 +196,9 @@ def write_cloud_ply(path: str | os.PathLike, pcd: o3d.t.geometry.PointCloud) -> 
     """
     import open3d as o3d
 
+    for key in list(pcd.point):
+        if pcd.point[key].dtype == o3d.core.Dtype.Int64:
+            pcd.point[key] = pcd.point[key].to(o3d.core.Dtype.Int32)
     with atomic_path(path) as tmp:
         if len(pcd.point.positions) == 0:
             tmp.write_text(_empty_ply_header(pcd), encoding="ascii")
@@ -544,12 +548,7 @@ class Trajectories:
 
     def write_frame_ply(self, t: int, path: str | os.PathLike, **kwargs) -> None:
         """Write frame ``t`` as a PLY with its attributes, atomically (see :meth:`to_pointcloud`)."""
-        import open3d as o3d
-
-        pcd = self.to_pointcloud(t, **kwargs)
-        # PLY has no 64-bit integers: Open3D refuses to write an Int64 attribute.
-        pcd.point.track_id = pcd.point.track_id.to(o3d.core.Dtype.Int32)
-        write_cloud_ply(path, pcd)
+        write_cloud_ply(path, self.to_pointcloud(t, **kwargs))
 
     # -- files -------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:

@@ -71,15 +71,19 @@ def reconstruct(
     WORK/trajectories.npz. A restart removes only the files pointtraj wrote there.
     """
     from ..cli_common import cli_errors, progress_bars
-    from ..session import Capture
     from ..stages import reconstruct_work
-    from ..workdir import parse_frames
 
     with cli_errors(work), progress_bars() as bars:
         cfg = load_reconstruct_config(config_path)
-        rng = parse_frames(frames, int(Capture.open(capture).num_frames), where="--frames")
         traj = reconstruct_work(
-            work, capture, cfg, rng, restart=restart, force=force_folder, progress=bars
+            work,
+            capture,
+            cfg,
+            frames,
+            restart=restart,
+            force=force_folder,
+            frames_label="--frames",
+            progress=bars,
         )
     first = int(traj.first_frame.min()) if traj.num_trajectories else 0
     click.echo(

@@ -18,6 +18,7 @@ view (visibility 0 in every camera) and a NaN reprojection error, so that they c
 
 from __future__ import annotations
 
+import itertools
 import logging
 from dataclasses import dataclass
 
@@ -88,33 +89,64 @@ def _links(traj: Trajectories, cfg: StitchConfig) -> np.ndarray:
         step = g + 1
         for t, b_idx in starts_at.items():
             a_idx = np.flatnonzero(last == t - step)
-            if a_idx.size == 0 or b_idx.size == 0:
+            if a_idx.size == 0:
                 continue
             pred = x_end[a_idx] + step * velocity[a_idx]
             reach = cfg.radius_m + cfg.speed_factor * step * np.linalg.norm(velocity[a_idx], axis=1)
-            tree = cKDTree(x_start[b_idx])
-            for i, cand in enumerate(tree.query_ball_point(pred, reach)):
-                if not cand:
-                    continue
-                b = b_idx[np.asarray(cand)]
-                a = a_idx[i]
-                ok = np.abs(c_end[a] - c_start[b]).mean(axis=1) <= cfg.max_color_diff
-                for bb in b[ok]:
-                    pairs.append((a, bb))
-                    dists.append(np.linalg.norm(x_start[bb] - pred[i]) + 1e-6 * g)
+            found = cKDTree(x_start[b_idx]).query_ball_point(pred, reach)
+            counts = np.fromiter(map(len, found), np.int64, len(found))
+            if not counts.any():
+                continue
+            i = np.repeat(np.arange(len(a_idx)), counts)  # (k,) row of pred
+            bb = b_idx[np.fromiter(itertools.chain.from_iterable(found), np.int64, counts.sum())]
+            aa = a_idx[i]
+            ok = np.abs(c_end[aa] - c_start[bb]).mean(axis=1) <= cfg.max_color_diff
+            pairs.append(np.column_stack([aa[ok], bb[ok]]))
+            dists.append(np.linalg.norm(x_start[bb[ok]] - pred[i[ok]], axis=1) + 1e-6 * g)
     if not pairs:
         return np.zeros((0, 2), np.int64)
-    pairs = np.asarray(pairs, np.int64)
-    order = np.argsort(np.asarray(dists), kind="stable")
-    used_a = np.zeros(M, bool)
-    used_b = np.zeros(M, bool)
-    keep = []
-    for k in order:  # nearest first, each end and start once (L is small: a few per frame)
-        a, b = pairs[k]
-        if not used_a[a] and not used_b[b]:
-            used_a[a] = used_b[b] = True
-            keep.append(k)
-    return pairs[np.sort(np.asarray(keep, np.int64))]
+    return _greedy_matching(np.concatenate(pairs), np.concatenate(dists), M)
+
+
+def _greedy_matching(pairs: np.ndarray, cost: np.ndarray, M: int) -> np.ndarray:
+    """Pairs taken nearest first, each end and each start at most once.
+
+    Vectorised in rounds: a pair that is the cheapest remaining one of both its end and its
+    start is taken by the greedy order too (no cheaper pair can claim either), so each round
+    takes all of those and drops the pairs they block.
+
+    Parameters
+    ----------
+    pairs : (L, 2) int ndarray
+        Candidate (end, start) pairs.
+    cost : (L,) float ndarray
+    M : int
+        Trajectories.
+
+    Returns
+    -------
+    (K, 2) int64 ndarray
+        The pairs taken, in input order.
+    """
+    order = np.lexsort((np.arange(len(cost)), cost))  # ties by position: a strict order
+    rank = np.empty(len(cost), np.int64)
+    rank[order] = np.arange(len(cost))
+    alive = np.ones(len(cost), bool)
+    taken = np.zeros(len(cost), bool)
+    while alive.any():
+        idx = np.flatnonzero(alive)
+        best_a = np.full(M, np.iinfo(np.int64).max)
+        best_b = np.full(M, np.iinfo(np.int64).max)
+        np.minimum.at(best_a, pairs[idx, 0], rank[idx])
+        np.minimum.at(best_b, pairs[idx, 1], rank[idx])
+        win = idx[(best_a[pairs[idx, 0]] == rank[idx]) & (best_b[pairs[idx, 1]] == rank[idx])]
+        taken[win] = True
+        used_a = np.zeros(M, bool)
+        used_b = np.zeros(M, bool)
+        used_a[pairs[win, 0]] = True
+        used_b[pairs[win, 1]] = True
+        alive &= ~(used_a[pairs[:, 0]] | used_b[pairs[:, 1]])
+    return pairs[taken]
 
 
 def stitch_trajectories(

@@ -1150,12 +1150,7 @@ def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
     path : path-like
     record : FrameRecord
     """
-    import open3d as o3d
-
-    pcd = frame_pointcloud(record.xyz, record.color, record.visibility, record.ids)
-    # PLY has no 64-bit integers: track ids are written as int32 (M < 2^31)
-    pcd.point.track_id = pcd.point.track_id.to(o3d.core.Dtype.Int32)
-    write_cloud_ply(path, pcd)
+    write_cloud_ply(path, frame_pointcloud(record.xyz, record.color, record.visibility, record.ids))
 
 
 def reconstruct_capture(

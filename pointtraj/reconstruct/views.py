@@ -153,11 +153,7 @@ def point_normals(
 
     X = check_array("xyz", xyz, (None, 3))
     N = len(X)
-    centres = np.stack([cam.C for cam in rig])  # (C, 3)
-    to_cams = centres[:, None, :] - X[None]  # (C, N, 3)
-    to_cams /= np.linalg.norm(to_cams, axis=2, keepdims=True)
-    facing = np.einsum("cn,cnk->nk", observed.astype(np.float64), to_cams)  # (N, 3)
-    facing /= np.maximum(np.linalg.norm(facing, axis=1, keepdims=True), 1e-12)
+    facing = _facing(observed, _directions(rig, X))
     if N < 3:
         return facing
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(X))
@@ -168,6 +164,19 @@ def point_normals(
     bad = ~np.all(np.isfinite(normals), axis=1) | (np.linalg.norm(normals, axis=1) < 0.5)
     normals[bad] = facing[bad]
     return normals
+
+
+def _directions(rig: CameraRig, X: np.ndarray) -> np.ndarray:
+    """(C, N, 3) unit directions from the points X (N, 3) to the camera centres."""
+    centres = np.stack([cam.C for cam in rig])
+    d = centres[:, None, :] - X[None]
+    return d / np.linalg.norm(d, axis=2, keepdims=True)
+
+
+def _facing(observed: np.ndarray, to_cams: np.ndarray) -> np.ndarray:
+    """(N, 3) unit mean direction to the cameras observing each point (observed (C, N))."""
+    f = np.einsum("cn,cnk->nk", observed.astype(to_cams.dtype), to_cams)
+    return f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-12)
 
 
 def depth_uncertainty(
@@ -270,14 +279,11 @@ def discover_views(
     cand = cand & ~observed & (observed.sum(axis=0) >= 2)[None, :]
     if not cand.any():
         return out, searched
-    centres = np.stack([cam.C for cam in rig])
-    to_cams = (centres[:, None, :] - X[None]).astype(np.float32)  # (C, N, 3)
-    to_cams /= np.linalg.norm(to_cams, axis=2, keepdims=True)
+    to_cams = _directions(rig, X).astype(np.float32)
     if cfg.normal == "neighbors":
         normals = point_normals(rig, X, observed, cfg.normal_neighbors)
-    else:  # facing the cameras that observe the point
-        normals = np.einsum("cn,cnk->nk", observed.astype(np.float32), to_cams)
-        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    else:
+        normals = _facing(observed, to_cams)
     incidence = np.einsum("cnk,nk->cn", to_cams, normals)  # cos of the incidence angle
     cand &= incidence >= np.cos(np.radians(cfg.max_incidence_deg))
     if not cand.any():
