@@ -15,8 +15,9 @@ sample (within ``--depth-tol``); it is observed when the store's visibility exce
 ``visibility_threshold``.
 
 The false-occlusion rate applies the tracker's occlusion test at its default settings
-(``occlusion_test(rig, xyz, occlusion_depth_m, cell_px=occlusion_cell_px)`` of
-``ReconstructConfig()``, 0.05 m and 8 px) to each frame's stored points, and reports the share
+(``occlusion_test`` with ``occlusion_tolerance`` and ``occlusion_cell_px`` of
+``ReconstructConfig()``: 3 depth sigmas each side within 1-5 cm, 8 px cells) to each frame's
+stored points, and reports the share
 of the views it marks occluded that the ground truth sees (support: marked views of actor
 points), and the share of truly occluded in-image views it marks (support: those views). The
 tracker applies it to the frame's candidate points before it drops those seen by fewer than
@@ -47,9 +48,10 @@ def occlusion_audit(capture: Path, traj, frames: range, radius: float, depth_tol
     import numpy as np
 
     from pointtraj.evaluate.views import OcclusionAudit, false_occlusion_rate, frame_truth
-    from pointtraj.reconstruct.track import ReconstructConfig
+    from pointtraj.reconstruct.track import ReconstructConfig, occlusion_tolerance
     from pointtraj.reconstruct.triangulate import occlusion_test
     from pointtraj.session import Capture
+    from pointtraj.trajectories import dequantize_visibility
 
     cfg = ReconstructConfig()
     rig = Capture.open(capture).rig.subset(traj.camera_names)
@@ -59,13 +61,16 @@ def occlusion_audit(capture: Path, traj, frames: range, radius: float, depth_tol
         if not len(rows):
             continue
         xyz = traj.xyz[rows].astype(np.float64)
-        occ = occlusion_test(rig, xyz, cfg.occlusion_depth_m, cell_px=cfg.occlusion_cell_px)
+        observed = dequantize_visibility(traj.visibility[rows]).T > cfg.visibility_threshold
+        tol = occlusion_tolerance(cfg, rig, xyz, observed)
+        occ = occlusion_test(rig, xyz, tol, cell_px=cfg.occlusion_cell_px)
         truth = frame_truth(capture, rig, t, depth_tol)
         total = total + false_occlusion_rate(
             capture, rig, t, xyz, occ, radius, depth_tol, truth=truth
         )
     return {
         "occlusion.depth_m": cfg.occlusion_depth_m,
+        "occlusion.sigmas": cfg.occlusion_sigmas,
         "occlusion.cell_px": cfg.occlusion_cell_px,
         "occlusion.false_rate": total.false_rate,
         "occlusion.false_rate.support": total.marked,

@@ -33,7 +33,8 @@ from ..trajectories import Trajectories, frame_pointcloud, quantize_visibility, 
 from .densify import DensifyConfig
 from .matching import MatchingConfig, MultiViewTracks, match_frame, resolve_ambiguous
 from .stitch import StitchConfig, stitch_trajectories
-from .views import ViewsConfig, discover_views
+from .survive import SurviveConfig, carry_one_view, predict_rigid
+from .views import ViewsConfig, depth_uncertainty, discover_views
 
 if TYPE_CHECKING:  # pragma: no cover
     from .triangulate import Triangulation, TriangulationConfig
@@ -61,8 +62,9 @@ STATE_FORMAT_VERSION = 1
 #: Lucas-Kanade or the forward-backward check, or out of the images); the RANSAC
 #: re-triangulation failed or its error exceeded ``max_mean_error_px``; the occlusion test hid
 #: views it had; or fewer than ``min_views`` of its re-triangulated views kept a visibility
-#: above ``visibility_threshold``.
-STOP_REASONS = ("flow", "triangulation", "occlusion", "visibility")
+#: above ``visibility_threshold``; or, on fewer than two views already (``[reconstruct.survive]``),
+#: it lost its last one, its view and its neighbours' motion disagreed, or its frames ran out.
+STOP_REASONS = ("flow", "triangulation", "occlusion", "visibility", "one-view")
 
 
 @dataclass(frozen=True)
@@ -105,8 +107,16 @@ class ReconstructConfig:
     cover_views : int
         See ``cover_px``.
     occlusion_depth_m : float
-        Depth tolerance of the occlusion test against the frame's own points (metres); 0 turns
-        the test off.
+        Depth tolerance of the occlusion test against the frame's own points (metres), and its
+        upper bound when it comes from the points' uncertainty; 0 turns the test off.
+    occlusion_sigmas : float
+        The occlusion test's tolerance per point: each point is the depth interval of this many
+        standard deviations of its depth on each side (from its triangulation angle,
+        :func:`~.views.depth_uncertainty`), within ``[occlusion_min_m, occlusion_depth_m]``
+        in all; a point is hidden only by a point whose interval lies wholly in front of its
+        own. 0: the fixed ``occlusion_depth_m`` for every point.
+    occlusion_min_m : float
+        Lower bound of the per-point tolerance (a surface's thickness that no point resolves).
     occlusion_cell_px : float
         Z-buffer cell size of the occlusion test.
     max_angle_deg : float
@@ -145,6 +155,10 @@ class ReconstructConfig:
     stitch : StitchConfig
         Joining a trajectory that ended to one born where it would have gone, across gaps of
         a frame or two (table ``[reconstruct.stitch]``; :mod:`pointtraj.reconstruct.stitch`).
+    survive : SurviveConfig
+        A point that drops to one view goes on for a few frames, carried by its neighbours'
+        rigid motion where its remaining view agrees (table ``[reconstruct.survive]``;
+        :mod:`pointtraj.reconstruct.survive`).
     """
 
     sigma_px: float = 1.0
@@ -161,6 +175,8 @@ class ReconstructConfig:
     cover_px: float = 3.0
     cover_views: int = 2
     occlusion_depth_m: float = 0.05
+    occlusion_sigmas: float = 3.0
+    occlusion_min_m: float = 0.01
     occlusion_cell_px: float = 8.0
     max_angle_deg: float = 90.0
     max_pairs_per_camera: int = 12
@@ -173,6 +189,7 @@ class ReconstructConfig:
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     views: ViewsConfig = field(default_factory=ViewsConfig)
     stitch: StitchConfig = field(default_factory=StitchConfig)
+    survive: SurviveConfig = field(default_factory=SurviveConfig)
 
     def __post_init__(self) -> None:
         checks = {
@@ -189,6 +206,8 @@ class ReconstructConfig:
             "cover_px": self.cover_px >= 0,
             "cover_views": self.cover_views >= 1,
             "occlusion_depth_m": self.occlusion_depth_m >= 0,
+            "occlusion_sigmas": self.occlusion_sigmas >= 0,
+            "occlusion_min_m": 0 <= self.occlusion_min_m <= max(self.occlusion_depth_m, 0),
             "occlusion_cell_px": self.occlusion_cell_px > 0,
             "max_angle_deg": 0 < self.max_angle_deg <= 180,
             "max_pairs_per_camera": self.max_pairs_per_camera >= 0,
@@ -214,6 +233,8 @@ class ReconstructConfig:
             raise ValidationError("ReconstructConfig.views must be a ViewsConfig")
         if not isinstance(self.stitch, StitchConfig):
             raise ValidationError("ReconstructConfig.stitch must be a StitchConfig")
+        if not isinstance(self.survive, SurviveConfig):
+            raise ValidationError("ReconstructConfig.survive must be a SurviveConfig")
 
     def triangulation(self) -> TriangulationConfig:
         """The matching :class:`TriangulationConfig`."""
@@ -244,6 +265,9 @@ class TrackState:
         Tracked (inlier) observations, NaN where the camera does not see the point.
     next_id : int
         The id the next new trajectory gets.
+    lone : (N,) int64 ndarray, optional
+        Frames each point has gone on with fewer than two views (0 where it has two or more;
+        :mod:`~.survive`). Default: all 0.
     """
 
     frame: int
@@ -252,6 +276,11 @@ class TrackState:
     visibility: np.ndarray
     pixels: np.ndarray
     next_id: int
+    lone: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.lone is None:
+            self.lone = np.zeros(len(self.ids), np.int64)
 
     @classmethod
     def empty(cls, num_cameras: int, frame: int = -1) -> TrackState:
@@ -602,6 +631,37 @@ def _to_grey(image: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
 
 
+def occlusion_tolerance(
+    config: ReconstructConfig, rig: CameraRig, xyz: np.ndarray, observed: np.ndarray
+) -> float | np.ndarray:
+    """The occlusion test's depth tolerance for each of a frame's points.
+
+    Parameters
+    ----------
+    config : ReconstructConfig
+        ``occlusion_sigmas``, ``occlusion_min_m``, ``occlusion_depth_m`` and ``sigma_px``.
+    rig : CameraRig
+        C cameras.
+    xyz : (N, 3) float ndarray
+    observed : (C, N) bool ndarray
+        The cameras observing each point.
+
+    Returns
+    -------
+    float or (N,) float64 ndarray
+        Metres: ``2 * occlusion_sigmas`` standard deviations of each point's depth
+        (:func:`~.views.depth_uncertainty`) within ``[occlusion_min_m, occlusion_depth_m]``
+        (the upper bound for a point on one view); ``occlusion_depth_m`` for every point when
+        ``occlusion_sigmas`` is 0.
+    """
+    if config.occlusion_sigmas <= 0:
+        return config.occlusion_depth_m
+    sigma = depth_uncertainty(rig, xyz, observed, config.sigma_px)
+    return np.clip(
+        2 * config.occlusion_sigmas * sigma, config.occlusion_min_m, config.occlusion_depth_m
+    )
+
+
 # -- the tracker ------------------------------------------------------------------------------
 
 
@@ -723,7 +783,11 @@ class Tracker:
                         fb_max_px=cfg.fb_max_px,
                     )
         tri_old = triangulate_ransac(rig, obs, self.tri_config)
-        keep_old = self._alive(tri_old)
+        triangulated = self._alive(tri_old)
+        keep_old = triangulated
+        if cfg.survive.frames > 0 and len(st):
+            tri_old, carried = self._carry(st, obs, tri_old, triangulated)
+            keep_old = triangulated | carried
 
         # 2. dense matching: new points where no live trajectory is
         new_tri, new_obs = None, np.zeros((C, 0, 2))
@@ -761,13 +825,20 @@ class Tracker:
         enough = np.count_nonzero(vis > cfg.visibility_threshold, axis=1) >= cfg.min_views
         if len(xyz):
             vis = np.where(self._occluded(xyz, vis), np.float32(0), vis)
-        seen = np.count_nonzero(vis > cfg.visibility_threshold, axis=1) >= cfg.min_views
-        self._count_stops(obs, keep_old, enough[:n_old], seen[:n_old])
+        views = np.count_nonzero(vis > cfg.visibility_threshold, axis=1)
+        seen = views >= cfg.min_views
+        lone = np.zeros(len(xyz), np.int64)  # frames on fewer than two views, after this one
+        lone[:n_old] = np.where(seen[:n_old], 0, st.lone[keep_old] + 1)
+        if cfg.survive.frames > 0:  # tracked points left with one view go on for a while
+            seen[:n_old] |= (views[:n_old] >= 1) & (lone[:n_old] <= cfg.survive.frames)
+        self._count_stops(obs, triangulated, keep_old, enough[:n_old], seen[:n_old], st.lone > 0)
         n_new = int(seen[n_old:].sum())
         ids = np.concatenate([old_ids[seen[:n_old]], st.next_id + np.arange(n_new)])
         xyz, vis, err, pix = xyz[seen], vis[seen], err[seen], pix[:, seen]
         pix = np.where((vis.T > cfg.visibility_threshold)[..., None], pix, np.nan)
-        self.state = TrackState(t, ids, xyz, vis, pix.astype(np.float32), st.next_id + n_new)
+        self.state = TrackState(
+            t, ids, xyz, vis, pix.astype(np.float32), st.next_id + n_new, lone[seen]
+        )
         self._prev_grey = grey
         logger.info(
             "frame %d: %d tracked of %d, %d new, %d live",
@@ -786,6 +857,48 @@ class Tracker:
             color=sample_colors(images, pix, vis),
             num_new=n_new,
         )
+
+    def _carry(
+        self, st: TrackState, obs: np.ndarray, tri: Triangulation, triangulated: np.ndarray
+    ) -> tuple[Triangulation, np.ndarray]:
+        """One-view survival (:mod:`~.survive`) of live points the re-triangulation lost.
+
+        Returns the triangulation with the carried points' rows replaced (one inlier view,
+        visibility 1 there, the prediction's distance to it as the error) and which points
+        are carried.
+        """
+        from .triangulate import Triangulation
+
+        cfg = self.config
+        carried = np.zeros(len(st), bool)
+        cand = np.flatnonzero(
+            ~triangulated
+            & (st.lone < cfg.survive.frames)
+            & np.all(np.isfinite(obs), axis=2).any(axis=0)
+        )
+        if cand.size == 0 or int(triangulated.sum()) < cfg.survive.min_neighbors:
+            return tri, carried
+        pred, _ = predict_rigid(
+            st.xyz[triangulated], tri.points[triangulated], st.xyz[cand], cfg.survive
+        )
+        max_px = cfg.survive.max_px or 2 * cfg.ransac_threshold_px
+        X, cam, dist, ok = carry_one_view(self.rig, pred, obs[:, cand], max_px)
+        idx, cam, dist = cand[ok], cam[ok], dist[ok]
+        if idx.size == 0:
+            return tri, carried
+        points, inliers, errors = tri.points.copy(), tri.inliers.copy(), tri.errors.copy()
+        visibility, mean_error = tri.visibility.copy(), tri.mean_error.copy()
+        points[idx] = X[ok]
+        inliers[:, idx] = False
+        inliers[cam, idx] = True
+        errors[:, idx] = np.nan
+        errors[cam, idx] = dist
+        visibility[idx] = 0
+        visibility[idx, cam] = 1
+        mean_error[idx] = dist
+        carried[idx] = True
+        logger.debug("one-view survival: %d of %d points carried", idx.size, cand.size)
+        return Triangulation(points, inliers, errors, visibility, mean_error), carried
 
     def _expand(
         self,
@@ -836,7 +949,8 @@ class Tracker:
         every = cfg.views.retry_every or max(1, C // 16)
         if every > 1 and n_old:
             due = (old_ids[None, :] + np.arange(C)[:, None] + t) % every == 0
-            cand[:, :n_old] &= due
+            one_view = np.all(np.isfinite(pix[:, :n_old]), axis=2).sum(axis=0) < 2
+            cand[:, :n_old] &= due | one_view[None, :]
         grown, searched = discover_views(
             self.rig, images, xyz, pix, cand, cfg.views, sigma_px=cfg.sigma_px
         )
@@ -912,19 +1026,34 @@ class Tracker:
         return tri, dense, keep
 
     def _count_stops(
-        self, obs: np.ndarray, kept: np.ndarray, enough: np.ndarray, seen: np.ndarray
+        self,
+        obs: np.ndarray,
+        triangulated: np.ndarray,
+        kept: np.ndarray,
+        enough: np.ndarray,
+        seen: np.ndarray,
+        was_lone: np.ndarray,
     ) -> None:
         """Count why the live trajectories that ended at this frame ended.
 
-        ``obs`` (C, N, 2): their flow results; ``kept`` (N,): alive after re-triangulation;
-        ``enough`` and ``seen`` (kept points): enough views before and after the occlusion test.
+        ``obs`` (C, N, 2): their flow results; ``triangulated`` (N,): alive after
+        re-triangulation; ``kept`` (N,): that or carried on one view (:meth:`_carry`);
+        ``enough`` and ``seen`` (kept points): enough views before and after the occlusion
+        test, and still live; ``was_lone`` (N,): on fewer than two views before this frame.
         """
+        ended = ~kept
+        ended[kept] = ~seen
+        lone = ended & was_lone
+        self.stops["one-view"] += int(lone.sum())
+        ended &= ~was_lone
         flows = np.count_nonzero(np.all(np.isfinite(obs), axis=2), axis=0)  # (N,)
-        lost_flow = flows < self.config.min_views
+        lost_flow = ended & ~kept & (flows < self.config.min_views)
         self.stops["flow"] += int(lost_flow.sum())
-        self.stops["triangulation"] += int((~lost_flow & ~kept).sum())
-        self.stops["occlusion"] += int((enough & ~seen).sum())
-        self.stops["visibility"] += int((~enough).sum())
+        self.stops["triangulation"] += int((ended & ~kept & ~lost_flow).sum())
+        after = np.zeros(len(kept), bool)
+        after[kept] = enough
+        self.stops["occlusion"] += int((ended & kept & after).sum())
+        self.stops["visibility"] += int((ended & kept & ~after).sum())
 
     def _occluded(self, xyz: np.ndarray, vis: np.ndarray, projection=None) -> np.ndarray:
         """(N, C) views of the frame's points hidden behind its own surface (all False when
@@ -934,12 +1063,9 @@ class Tracker:
         cfg = self.config
         if cfg.occlusion_depth_m <= 0 or len(xyz) == 0:
             return np.zeros((len(xyz), len(self.rig)), bool)
+        tol = occlusion_tolerance(cfg, self.rig, xyz, (vis > cfg.visibility_threshold).T)
         return occlusion_test(
-            self.rig,
-            xyz,
-            cfg.occlusion_depth_m,
-            cell_px=cfg.occlusion_cell_px,
-            projection=projection,
+            self.rig, xyz, tol, cell_px=cfg.occlusion_cell_px, projection=projection
         )
 
     def _alive(self, tri: Triangulation) -> np.ndarray:
@@ -1093,6 +1219,7 @@ def _save_state(path: Path, record: FrameRecord, state: TrackState) -> None:
         live_xyz=state.xyz,
         live_visibility=state.visibility,
         live_pixels=state.pixels,
+        live_lone=state.lone,
         next_id=np.int64(state.next_id),
     )
 
@@ -1133,6 +1260,7 @@ def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
             d["live_visibility"],
             d["live_pixels"],
             int(d["next_id"]),
+            d.get("live_lone"),  # absent in the states of older versions
         )
     except (ValueError, TypeError) as exc:
         raise FileFormatError(path, f"unreadable tracker state ({exc})") from None

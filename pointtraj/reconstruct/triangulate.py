@@ -952,16 +952,21 @@ def _auto_cell_px(pixels: np.ndarray, ok: np.ndarray) -> float:
 def occlusion_test(
     rig: CameraRig,
     points: np.ndarray,
-    depth_tolerance: float,
+    depth_tolerance: float | np.ndarray,
     *,
     cell_px: float | None = None,
     projection: Projection | None = None,
 ) -> np.ndarray:
     """Find points hidden behind the frame's own reconstructed surface, per camera.
 
-    The points are splatted into a coarse z-buffer per camera (cells of ``cell_px`` pixels,
-    keeping the nearest depth per cell with ``np.minimum.at``); a point is occluded in a camera
-    when its depth exceeds its cell's front depth by more than ``depth_tolerance``.
+    The points are splatted into a coarse z-buffer per camera (cells of ``cell_px`` pixels).
+    With one tolerance for all points, a point is occluded in a camera when its depth exceeds
+    its cell's front depth by more than ``depth_tolerance``. With a tolerance per point, each
+    point counts as a depth interval ``depth +- tolerance / 2``: the z-buffer keeps the
+    nearest far end per cell (``np.minimum.at``), and a point is occluded when its near end
+    lies behind it, so that two points occlude each other only when they are farther apart
+    than the mean of their tolerances. An uncertain point neither hides nor is hidden by a
+    surface it may belong to.
 
     Parameters
     ----------
@@ -969,12 +974,13 @@ def occlusion_test(
         C cameras.
     points : (N, 3) float ndarray
         One frame's points (NaN rows are ignored and never occluded).
-    depth_tolerance : float
+    depth_tolerance : float or (N,) float ndarray
         Metres a point may lie behind the front surface and still count as on it: a few times
         the reconstruction noise, and less than the thickness of the thinnest parts (limbs).
         On ray-cast ground truth of two synthetic people (``benchmarks/bench_triangulate.py
         --occlusion``), 0.02 m finds about 0.89 of the occluded point-views with 0.89
-        precision; 0.05 m misses the far side of arms and legs (recall about 0.6).
+        precision; 0.05 m misses the far side of arms and legs (recall about 0.6). Per point,
+        e.g. from each point's depth uncertainty (see above).
     cell_px : float, optional
         Z-buffer cell size in pixels: larger cells close holes between sparse points but
         blur occlusion boundaries. Default: three times the median projected point spacing
@@ -1006,7 +1012,12 @@ def occlusion_test(
     if not isinstance(rig, CameraRig):
         raise ValidationError(f"rig: expected a CameraRig, got {type(rig).__name__}")
     X = check_array("points", points, (None, 3))
-    if not depth_tolerance >= 0:
+    tol = np.asarray(depth_tolerance, np.float64)
+    if tol.ndim == 1 and tol.shape != (X.shape[0],):
+        raise ValidationError(
+            f"depth_tolerance: expected one per point ({X.shape[0]}), got {tol.shape[0]}"
+        )
+    if tol.ndim > 1 or not np.all(tol >= 0):
         raise ValidationError(f"depth_tolerance must be >= 0, got {depth_tolerance!r}")
     if cell_px is not None and not cell_px > 0:
         raise ValidationError(f"cell_px must be > 0, got {cell_px!r}")
@@ -1024,9 +1035,10 @@ def occlusion_test(
     cx = np.clip(((pix[..., 0] + 0.5) // cell_px).astype(np.int64), 0, gw[:, None] - 1)
     cy = np.clip(((pix[..., 1] + 0.5) // cell_px).astype(np.int64), 0, gh[:, None] - 1)
     cell = base[:-1, None] + cy * gw[:, None] + cx  # (C, N)
+    half = np.broadcast_to(tol / 2, (N,))[None, :]  # (1, N)
     zbuf = np.full(int(base[-1]), np.inf)
-    np.minimum.at(zbuf, cell[ok], proj.depth[ok])
+    np.minimum.at(zbuf, cell[ok], (proj.depth + half)[ok])  # nearest far end per cell
     front = zbuf[cell]  # (C, N)
-    occluded = ok & (proj.depth > front + depth_tolerance)
+    occluded = ok & (proj.depth - half > front)
     logger.debug("occlusion test: %d of %d point-views occluded", int(occluded.sum()), C * N)
     return np.ascontiguousarray(occluded.T)

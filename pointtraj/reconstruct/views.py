@@ -21,7 +21,8 @@ discovery uses the calibration instead, as the plane sweep of :mod:`.densify` do
 
 A point's unobserved cameras are searched when it is new, and then every ``retry_every``
 frames (staggered by point and camera), so that a tracked point does not pay for the same
-fruitless search every frame.
+fruitless search every frame; a point carried on one view (:mod:`.survive`) every frame, over
+the widest depth range (one view gives no triangulation angle).
 """
 
 from __future__ import annotations
@@ -214,7 +215,8 @@ def depth_uncertainty(
         min_cos = np.where(both, cos, 1.0).min(axis=(1, 2)).astype(np.float64)
         sin = np.sqrt(np.clip(1 - min_cos**2, 0.0, 1.0))
         scale = np.where(obs, dist / f[:, None], 0.0).max(axis=0)  # metres per pixel
-        out[a : a + _CHUNK] = np.where(sin > 1e-6, sigma_px * scale / sin, np.inf)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[a : a + _CHUNK] = np.where(sin > 1e-6, sigma_px * scale / sin, np.inf)
     return out
 
 
@@ -276,7 +278,7 @@ def discover_views(
     out = pix.copy()
     searched = np.zeros((C, N), bool)
     observed = np.all(np.isfinite(pix), axis=2)  # (C, N)
-    cand = cand & ~observed & (observed.sum(axis=0) >= 2)[None, :]
+    cand = cand & ~observed & (observed.sum(axis=0) >= 1)[None, :]
     if not cand.any():
         return out, searched
     to_cams = _directions(rig, X).astype(np.float32)
@@ -421,3 +423,104 @@ def _sweep(
     z_best = z[np.arange(n), b] + delta * half * (steps[1] - steps[0])
     Xb = cam.C + (z_best[:, None] * centre_ray) @ cam.R  # (n, 3) world
     return accept, usable, Xb
+
+
+def view_consistency(
+    rig: CameraRig,
+    images: Sequence[np.ndarray],
+    xyz: np.ndarray,
+    pixels: np.ndarray,
+    config: ViewsConfig | None = None,
+    *,
+    normals: np.ndarray | None = None,
+) -> np.ndarray:
+    """Photo-consistency of every observed view with the point's other views.
+
+    For each observed view (c, n), the other observing camera r whose direction to the point
+    is nearest c's gives a patch around its observation, on the plane through the point with
+    its surface normal; the plane is warped into c at the point's own depth and scored by NCC
+    with r's patch. A view whose camera sees the point's neighbourhood (an occluder passing in
+    front, a track that slid onto another surface) scores low, although Lucas-Kanade and the
+    RANSAC re-triangulation keep it.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    images : sequence of C (H, W) float32 ndarrays
+        Undistorted grey images (:func:`pointtraj.reconstruct.densify.prepare_images`).
+    xyz : (N, 3) float ndarray
+    pixels : (C, N, 2) float ndarray
+        Observations, distorted pixels (NaN where a camera does not observe the point).
+    config : ViewsConfig, optional
+        The patch's size, spacing and texture threshold.
+    normals : (N, 3) float ndarray, optional
+        Surface normals (default :func:`point_normals`).
+
+    Returns
+    -------
+    (C, N) float64 ndarray
+        NCC in [-1, 1] of each observed view; NaN where the view is not observed, the point
+        has one view, or the patch cannot be compared (flat, grazing, leaving the image).
+    """
+    cfg = config or ViewsConfig()
+    C = len(rig)
+    X = check_array("xyz", xyz, (None, 3))
+    N = len(X)
+    pix = check_array("pixels", pixels, (C, N, 2)).astype(np.float64)
+    score = np.full((C, N), np.nan)
+    observed = np.all(np.isfinite(pix), axis=2)  # (C, N)
+    observed &= (observed.sum(axis=0) >= 2)[None, :]
+    if not observed.any():
+        return score
+    to_cams = _directions(rig, X).astype(np.float32)
+    if normals is None:
+        normals = point_normals(rig, X, observed, cfg.normal_neighbors)
+    cs, ns = np.nonzero(observed)
+    others = observed.copy()
+    rs = np.empty(len(cs), np.int64)
+    for a in range(0, len(cs), _CHUNK):  # the nearest other observing camera
+        c, n = cs[a : a + _CHUNK], ns[a : a + _CHUNK]
+        cos = np.einsum("mk,cmk->mc", to_cams[c, n], to_cams[:, n])  # (m, C)
+        mask = others[:, n].T.copy()
+        mask[np.arange(len(c)), c] = False
+        rs[a : a + _CHUNK] = np.argmax(np.where(mask, cos, -2.0), axis=1)
+    ideal = rig.undistort_pixels(np.where(observed[..., None], pix, np.nan))
+    h = (cfg.patch_size - 1) / 2
+    off = (np.arange(cfg.patch_size) - h) * cfg.patch_spacing_px
+    offsets = np.stack(np.meshgrid(off, off), axis=-1).reshape(-1, 2)  # (P, 2)
+    ref = np.zeros((len(cs), len(offsets)), np.float32)
+    textured = np.zeros(len(cs), bool)
+    by_ref = np.argsort(rs, kind="stable")
+    for group in np.split(by_ref, np.flatnonzero(np.diff(rs[by_ref])) + 1):
+        if not len(group):
+            continue
+        r = int(rs[group[0]])
+        patch = ideal[r, ns[group]][:, None, :] + offsets[None]  # (k, P, 2)
+        z, std = _zscore(_sample(images[r], patch[..., 0], patch[..., 1]))
+        ok = np.isfinite(std) & (std >= cfg.min_std) & np.all(np.isfinite(z), axis=1)
+        ref[group] = np.where(ok[:, None], z, 0.0)
+        textured[group] = ok
+    pair = cs * C + rs
+    order = np.argsort(pair, kind="stable")
+    for group in np.split(order, np.flatnonzero(np.diff(pair[order])) + 1):
+        if not len(group):
+            continue
+        c, r = int(cs[group[0]]), int(rs[group[0]])
+        n = ns[group]
+        cam = rig[r]
+        patch = ideal[r, n][:, None, :] + offsets[None]
+        rays = _rays(cam, patch)  # (k, P, 3)
+        centre_ray = _rays(cam, ideal[r, n])
+        nr = normals[n] @ cam.R.T
+        with np.errstate(invalid="ignore", divide="ignore"):
+            w = np.einsum("nk,nk->n", nr, centre_ray)[:, None] / np.einsum("npk,nk->np", rays, nr)
+        w = np.where(np.isfinite(w) & (w > 0.2) & (w < 5.0), w, np.nan)
+        usable = textured[group] & np.all(np.isfinite(w), axis=1)
+        if not usable.any():
+            continue
+        z0 = ((X[n] - cam.C) @ cam.R.T)[:, 2:3]  # (k, 1): the point's depth in r
+        u = np.flatnonzero(usable)
+        s = _ncc(images[c], rig[c], cam, rays[u] * w[u, :, None], z0[u], ref[group[u]])[:, 0]
+        score[c, n[u]] = np.where(s > -1.0, s, np.nan)
+    return score
