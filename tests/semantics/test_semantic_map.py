@@ -374,7 +374,11 @@ def test_errors(scene):
 def test_frame_subset_and_progress(scene, capsys):
     rig, traj, label = scene
     rec = RasterRecognizer(rig, traj, label)
-    smap = build_semantic_map(FakeCapture(rig), traj, rec, frames=range(2, 4), progress=True)
+    calls = []
+    smap = build_semantic_map(
+        FakeCapture(rig), traj, rec, frames=range(2, 4), progress=lambda *a: calls.append(a)
+    )
+    assert calls == [("semantic map", 0, 2), ("semantic map", 1, 2), ("semantic map", 2, 2)]
     assert {t for _, t in rec.calls} == {2, 3}
     alive = (traj.first_frame <= 3) & (traj.last_frame >= 2)
     expected = np.minimum(traj.last_frame, 3) - np.maximum(traj.first_frame, 2) + 1
