@@ -29,8 +29,6 @@ import csv
 import logging
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import zipfile
 from collections.abc import Mapping
@@ -42,17 +40,16 @@ import numpy as np
 from .atomic import write_text_atomic
 from .camera import Camera, CameraRig
 from .errors import FileFormatError, PointtrajError, ValidationError
+from .fetch import cache_root, fetch_verified_wheel
 from .images import read_rgb
 
 __all__ = [
     "EXAMPLES",
-    "CACHE_ENV",
     "ExampleSpec",
     "ExampleCapture",
     "ExampleNotFoundError",
     "ImageMapping",
     "SyncReport",
-    "cache_root",
     "candidate_mappings",
     "measure_image_mapping",
     "choose_image_mapping",
@@ -68,8 +65,6 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: Environment variable overriding the cache root (wheels go to ``<root>/examples``).
-CACHE_ENV = "POINTTRAJ_CACHE"
 #: Environment variable naming the shared data root (holding ``data/caliscope_board_4cam``).
 SHARED_ENV = "POINTTRAJ_SHARED"
 
@@ -457,12 +452,6 @@ class ExampleCapture:
 # -- locations ------------------------------------------------------------------------------
 
 
-def cache_root() -> Path:
-    """The pointtraj cache root: ``$POINTTRAJ_CACHE`` or ``~/.cache/pointtraj`` (not created)."""
-    env = os.environ.get(CACHE_ENV)
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "pointtraj"
-
-
 def find_shared_data(name: str = CALISCOPE_FOLDER) -> Path | None:
     """``<shared>/data/<name>`` from ``$POINTTRAJ_SHARED``, ``<repo>/../shared`` or
     ``/work/shared``; None if none exists."""
@@ -565,7 +554,8 @@ def download_pose2sim_wheel(cache: str | os.PathLike | None = None) -> Path:
     Parameters
     ----------
     cache : path-like, optional
-        Folder for the wheel (default ``cache_root() / "examples"``).
+        Folder for the wheel (default ``<cache root>/examples``,
+        :func:`pointtraj.fetch.cache_root`).
 
     Returns
     -------
@@ -575,61 +565,17 @@ def download_pose2sim_wheel(cache: str | os.PathLike | None = None) -> Path:
     Raises
     ------
     ExampleNotFoundError
-        If pip cannot download it (with pip's last lines).
+        If pip cannot download it (with pip's last lines), or it fails its pinned SHA-256
+        (:func:`pointtraj.fetch.fetch_verified_wheel`).
     """
     folder = Path(cache) if cache is not None else cache_root() / "examples"
-    version = POSE2SIM_REQUIREMENT.split("==")[1]
-    for found in sorted(folder.glob(f"pose2sim-{version}-*.whl")):
-        if _sha256(found) == POSE2SIM_SHA256:
-            return found
-        logger.warning("%s: checksum mismatch (incomplete or altered); downloading again", found)
-        found.unlink()
-    folder.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=".pose2sim.", dir=folder) as tmp:
-        cmd = [
-            sys.executable,
-            "-m",
-            "pip",
-            "download",
-            "--no-deps",
-            "--disable-pip-version-check",
-            "--timeout",
-            "30",
-            "--retries",
-            "2",
-            "-q",
-            POSE2SIM_REQUIREMENT,
-            "-d",
-            tmp,
-        ]
-        logger.info("running %s", " ".join(cmd))
-        result = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        wheels = sorted(Path(tmp).glob("pose2sim-*.whl"))
-        if result.returncode != 0 or not wheels:
-            tail = (result.stderr or result.stdout).strip().splitlines()[-3:]
-            raise ExampleNotFoundError(
-                f"could not download {POSE2SIM_REQUIREMENT} with pip (exit {result.returncode}): "
-                + " | ".join(tail)
-            )
-        if _sha256(wheels[0]) != POSE2SIM_SHA256:
-            raise ExampleNotFoundError(
-                f"downloaded {wheels[0].name} has SHA-256 {_sha256(wheels[0])}, expected "
-                f"{POSE2SIM_SHA256}"
-            )
-        dest = folder / wheels[0].name
-        os.replace(wheels[0], dest)
-    logger.info("cached %s", dest)
-    return dest
-
-
-def _sha256(path: Path) -> str:
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+    return fetch_verified_wheel(
+        POSE2SIM_REQUIREMENT,
+        folder,
+        POSE2SIM_SHA256,
+        options=["--timeout", "30", "--retries", "2"],
+        error=ExampleNotFoundError,
+    )
 
 
 def _extract(z: zipfile.ZipFile, member: str, dest: Path) -> Path:

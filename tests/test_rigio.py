@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -16,6 +14,7 @@ from click.testing import CliRunner
 
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.errors import FileFormatError, ValidationError
+from pointtraj.examples import ExampleNotFoundError, download_pose2sim_wheel
 from pointtraj.rigio import (
     FORMATS,
     detect_format,
@@ -462,23 +461,15 @@ def pose2sim_qca() -> Path:
     target = cache / "pose2sim-0.10.49" / "Calib.qca.txt"
     if target.is_file():
         return target
-    wheel_dir = cache / "pose2sim-wheel"
     try:
-        subprocess.run(
-            [sys.executable, "-m", "pip", "download", "--no-deps", "--quiet", "--timeout", "20",
-             "pose2sim==0.10.49", "-d", str(wheel_dir)],
-            check=True, capture_output=True, timeout=300,
-        )  # fmt: skip
-    except (subprocess.SubprocessError, OSError) as exc:
+        wheel = download_pose2sim_wheel(cache / "pose2sim-wheel")
+    except ExampleNotFoundError as exc:
         pytest.skip(f"cannot download pose2sim 0.10.49 with pip (offline?): {exc}")
-    wheels = sorted(wheel_dir.glob("pose2sim-0.10.49-*.whl"))
-    if not wheels:
-        pytest.skip("pip downloaded no pose2sim wheel")
-    with zipfile.ZipFile(wheels[0]) as z:
+    with zipfile.ZipFile(wheel) as z:
         data = z.read("Pose2Sim/Demo_SinglePerson/calibration/Calib.qca.txt")
     target.parent.mkdir(parents=True, exist_ok=True)
     target.write_bytes(data)
-    wheels[0].unlink()
+    wheel.unlink()
     return target
 
 
