@@ -503,16 +503,12 @@ def _finish_output(tmp: Path, out: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-def _capture_toml(fps: float, source: str, description: str) -> str:
-    def q(s: str) -> str:
-        return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+def _save_capture_toml(path: Path, fps: float, source: str, description: str) -> None:
+    """Write an example's ``capture.toml``, marked as written by :data:`_MARK`."""
+    from .config import save_toml
 
-    return (
-        f"# written by {_MARK}\n"
-        f"fps = {float(fps)!r}\n"
-        f"source = {q(source)}\n"
-        f"description = {q(description)}\n"
-    )
+    doc = {"fps": float(fps), "source": source, "description": description}
+    save_toml(path, doc, comment=f"written by {_MARK}")
 
 
 def _video_info(path: Path) -> tuple[int, tuple[int, int], float]:
@@ -709,15 +705,13 @@ def fetch_pose2sim(
         rig = CameraRig(fixed)
         save_rig_toml(rig, tmp / "rig.toml")
         spec = EXAMPLES["pose2sim"]
-        write_text_atomic(
+        _save_capture_toml(
             tmp / "capture.toml",
-            _capture_toml(
-                POSE2SIM_FPS,
-                f"{spec.source} (https://pypi.org/project/pose2sim/0.10.49/, "
-                "https://github.com/perfanalytics/pose2sim)",
-                f"{spec.description}. Licence: {spec.licence} (LICENSE, Copyright (c) 2022, "
-                "perfanalytics).",
-            ),
+            POSE2SIM_FPS,
+            f"{spec.source} (https://pypi.org/project/pose2sim/0.10.49/, "
+            "https://github.com/perfanalytics/pose2sim)",
+            f"{spec.description}. Licence: {spec.licence} (LICENSE, Copyright (c) 2022, "
+            "perfanalytics).",
         )
         LabelSet.default().save(tmp / "labels.toml")
         notes = [f"{k}: {evidence[k]}" for k in corrections]
@@ -973,14 +967,12 @@ def fetch_caliscope_board(
         outer = ext / "timestamps.csv"
         full_sync = caliscope_sync_report(outer, counts) if outer.is_file() else sync
         spec = EXAMPLES["caliscope-board"]
-        write_text_atomic(
+        _save_capture_toml(
             tmp / "capture.toml",
-            _capture_toml(
-                sync.fps,
-                f"{spec.source}, read from {src}",
-                f"{spec.description}. Licence: {spec.licence} (LICENSE, Copyright (c) 2024, "
-                'Donald "Mac" Prible).',
-            ),
+            sync.fps,
+            f"{spec.source}, read from {src}",
+            f"{spec.description}. Licence: {spec.licence} (LICENSE, Copyright (c) 2024, "
+            'Donald "Mac" Prible).',
         )
         base = LabelSet.default()
         LabelSet(
