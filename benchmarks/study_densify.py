@@ -111,9 +111,9 @@ def from_seeds(capture: Path, rig, frame: int, fraction: float, setting: dict) -
 
 def in_tracker(capture: Path, rig, config_path, last: int, frames: int, on: bool) -> dict:
     """Part 2: ``frames`` frames ending at ``last``, densification off or on."""
-    from pointtraj.reconstruct.cli import load_reconstruct_config
     from pointtraj.reconstruct.track import Tracker
     from pointtraj.session import Capture
+    from pointtraj.stages import load_reconstruct_config
 
     cap = Capture.open(capture)
     cfg = load_reconstruct_config(config_path)

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 from study_semantics import STUDY_PRESETS, ground_truth_trajectories, render
 
-from pointtraj.evaluate.metrics import normalized_correlation
 from pointtraj.labelset import LabelSet
+from pointtraj.semantics import normalized_correlation
 from pointtraj.semantics.recognizers.simulated import SimulatedRecognizer
 from pointtraj.semantics.semantic_map import SemanticsConfig, build_semantic_map
 from pointtraj.session import Capture

@@ -313,9 +313,9 @@ def main() -> None:
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
-    from pointtraj.reconstruct.cli import load_reconstruct_config
     from pointtraj.reconstruct.track import reconstruct_capture
     from pointtraj.session import Capture
+    from pointtraj.stages import load_reconstruct_config
     from pointtraj.workdir import parse_frames
 
     if args.board is not None and not (args.capture / "rig.toml").is_file():

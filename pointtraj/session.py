@@ -25,8 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from .atomic import atomic_path, write_text_atomic
+from .atomic import atomic_path
 from .camera import CameraRig
+from .config import load_toml, save_toml
 from .errors import FileFormatError, ValidationError
 
 __all__ = ["Capture", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "DEFAULT_FPS"]
@@ -238,7 +239,6 @@ class Capture:
             image size that disagrees with the calibration (when ``strict``).
         """
         from .rigio import load_rig
-        from .rigio._common import read_toml
 
         path = Path(path)
         if not path.is_dir():
@@ -250,7 +250,7 @@ class Capture:
             rig = load_rig(rig_file, fmt="toml")
         elif not isinstance(rig, CameraRig):
             rig = load_rig(rig)
-        settings = _read_capture_toml(path, read_toml)
+        settings = _read_capture_toml(path)
         sources = _find_sources(path)
         extra = sorted(set(sources) - set(rig.names))
         if extra:
@@ -344,9 +344,7 @@ class Capture:
         path = Path(path)
         path.mkdir(parents=True, exist_ok=True)
         save_rig_toml(rig, path / "rig.toml")
-        write_text_atomic(
-            path / "capture.toml", f"fps = {float(fps)!r}\nimage_format = {image_format!r}\n"
-        )
+        save_toml(path / "capture.toml", {"fps": float(fps), "image_format": image_format})
         cap = cls(path, rig, None, 0, fps, True, image_format)
         for name in rig.names:
             cap._sizes[name] = rig[name].size
@@ -518,12 +516,12 @@ class Capture:
         self._sizes[name] = size
 
 
-def _read_capture_toml(path: Path, read_toml: Any) -> dict[str, Any]:
+def _read_capture_toml(path: Path) -> dict[str, Any]:
     """Validated settings of ``capture.toml`` (empty if absent)."""
     file = path / "capture.toml"
     if not file.is_file():
         return {}
-    data = read_toml(file)
+    data = load_toml(file)
     unknown = sorted(set(data) - set(_CAPTURE_KEYS))
     if unknown:
         logger.warning("%s: ignoring unknown key(s) %s", file, ", ".join(unknown))

@@ -51,6 +51,7 @@ __all__ = [
     "SemanticsStageConfig",
     "LabelStageConfig",
     "synthesize",
+    "load_reconstruct_config",
     "reconstruct_work",
     "ground_truth_work",
     "semantics_work",
@@ -188,6 +189,37 @@ def synthesize(
         image_format=config.image_format,
         on_frame=on_frame,
     )
+
+
+def load_reconstruct_config(path: str | os.PathLike | None) -> ReconstructConfig:
+    """A :class:`ReconstructConfig` from a TOML file (table ``[reconstruct]`` or top level).
+
+    Parameters
+    ----------
+    path : path-like or None
+        The file; None gives the defaults.
+
+    Returns
+    -------
+    ReconstructConfig
+
+    Raises
+    ------
+    FileFormatError
+        If the file is missing or invalid TOML, or has an unknown key or a bad value (naming
+        the file and the key).
+    """
+    from .config import from_mapping, load_toml
+    from .reconstruct.track import ReconstructConfig
+
+    if path is None:
+        return ReconstructConfig()
+    data = load_toml(path)
+    table = data.get("reconstruct", data) if isinstance(data.get("reconstruct"), dict) else data
+    try:
+        return from_mapping(ReconstructConfig, table, where="[reconstruct]")
+    except ValueError as exc:
+        raise FileFormatError(path, str(exc)) from None
 
 
 def reconstruct_work(
@@ -379,7 +411,7 @@ def semantics_work(
             trajectories,
             recognizer,
             config=cfg.semantics_config(),
-            progress=progress is not None,
+            progress=progress,
         )
         # The options as given (not the capture, which the simulated recogniser gets anew).
         smap.recognizer_options = {

@@ -276,14 +276,13 @@ class WorkFolder:
         reconstruct: Any = None,
     ) -> None:
         """Write ``work.toml`` (:meth:`run_document`) atomically, creating the folder."""
-        import tomli_w
-
-        from .atomic import write_text_atomic
+        from .config import save_toml
 
         doc = self.run_document(capture, frames, reconstruct)
-        header = "# pointtraj work folder (see data_specs/work_folder.md)\n"
         self.path.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(self.work_toml, header + tomli_w.dumps(doc))
+        save_toml(
+            self.work_toml, doc, comment="pointtraj work folder (see data_specs/work_folder.md)"
+        )
 
     def run_identity(self) -> dict[str, Any]:
         """The parts of ``work.toml`` that identify a reconstruction run (capture, frames,

@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -15,7 +13,9 @@ import pytest
 from click.testing import CliRunner
 
 from pointtraj.camera import Camera, CameraRig
+from pointtraj.config import load_toml, save_toml
 from pointtraj.errors import FileFormatError, ValidationError
+from pointtraj.examples import ExampleNotFoundError, download_pose2sim_wheel
 from pointtraj.rigio import (
     FORMATS,
     detect_format,
@@ -185,7 +185,7 @@ def test_rig_toml_bad_input(override, match, tmp_path):
 
 def test_bad_files(tmp_path):
     (tmp_path / "broken.toml").write_text("[cam_0\nname = 1")
-    with pytest.raises(FileFormatError, match="not valid TOML"):
+    with pytest.raises(FileFormatError, match="invalid TOML"):
         load_rig(tmp_path / "broken.toml")
     (tmp_path / "empty.toml").write_text('title = "nothing"\n')
     with pytest.raises(FileFormatError, match=r"no \[cam_<i>\] camera tables"):
@@ -210,11 +210,9 @@ def test_bad_files(tmp_path):
 def test_non_rotation_is_rejected(tmp_path):
     rig = random_rig(4, n=2)
     save_caliscope(rig, tmp_path / "camera_array.toml")
-    text = (tmp_path / "camera_array.toml").read_text()
-    R = rig[1].R.tolist()
-    bad = [[2 * v for v in row] for row in R]
-    text = text.replace(f"rotation = {R!r}".replace("'", ""), f"rotation = {bad!r}")
-    (tmp_path / "camera_array.toml").write_text(text)
+    doc = load_toml(tmp_path / "camera_array.toml")
+    doc["cameras"]["1"]["rotation"] = (2 * rig[1].R).tolist()
+    save_toml(tmp_path / "camera_array.toml", doc)
     with pytest.raises(FileFormatError, match=r"\[cameras\.1\]: .*not a rotation matrix"):
         load_rig(tmp_path / "camera_array.toml")
 
@@ -462,23 +460,15 @@ def pose2sim_qca() -> Path:
     target = cache / "pose2sim-0.10.49" / "Calib.qca.txt"
     if target.is_file():
         return target
-    wheel_dir = cache / "pose2sim-wheel"
     try:
-        subprocess.run(
-            [sys.executable, "-m", "pip", "download", "--no-deps", "--quiet", "--timeout", "20",
-             "pose2sim==0.10.49", "-d", str(wheel_dir)],
-            check=True, capture_output=True, timeout=300,
-        )  # fmt: skip
-    except (subprocess.SubprocessError, OSError) as exc:
+        wheel = download_pose2sim_wheel(cache / "pose2sim-wheel")
+    except ExampleNotFoundError as exc:
         pytest.skip(f"cannot download pose2sim 0.10.49 with pip (offline?): {exc}")
-    wheels = sorted(wheel_dir.glob("pose2sim-0.10.49-*.whl"))
-    if not wheels:
-        pytest.skip("pip downloaded no pose2sim wheel")
-    with zipfile.ZipFile(wheels[0]) as z:
+    with zipfile.ZipFile(wheel) as z:
         data = z.read("Pose2Sim/Demo_SinglePerson/calibration/Calib.qca.txt")
     target.parent.mkdir(parents=True, exist_ok=True)
     target.write_bytes(data)
-    wheels[0].unlink()
+    wheel.unlink()
     return target
 
 

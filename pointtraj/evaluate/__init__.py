@@ -7,8 +7,6 @@ from .metrics import (
     agreement_rate,
     disagreement_by_distance,
     label_accuracy,
-    normalized_correlation,
-    temporal_consistency,
 )
 from .report import Section, write_report
 from .study import EvaluateConfig, evaluate_work
@@ -21,7 +19,5 @@ __all__ = [
     "agreement_rate",
     "disagreement_by_distance",
     "label_accuracy",
-    "normalized_correlation",
-    "temporal_consistency",
     "write_report",
 ]

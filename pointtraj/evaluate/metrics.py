@@ -1,7 +1,9 @@
-"""Evaluation metrics over plain arrays: the paper's three studies and ground-truth accuracy.
+"""Evaluation metrics over plain arrays: the paper's studies and ground-truth accuracy.
 
 All functions are vectorised and take no file paths; :mod:`pointtraj.evaluate.study` gathers
-their inputs from a work folder.
+their inputs from a work folder. The temporal-consistency study (the paper's normalised
+correlation, NC) is :meth:`pointtraj.semantics.SemanticMap.temporal_consistency`, over
+:func:`pointtraj.semantics.normalized_correlation`.
 """
 
 from __future__ import annotations
@@ -15,8 +17,6 @@ from ..errors import ValidationError, check_array
 __all__ = [
     "LabelAccuracy",
     "label_accuracy",
-    "normalized_correlation",
-    "temporal_consistency",
     "disagreement_by_distance",
     "agreement_rate",
 ]
@@ -87,101 +87,6 @@ def label_accuracy(
     confusion = np.zeros((num_classes, num_classes), np.int64)
     np.add.at(confusion, (t[valid], p[valid]), 1)
     return LabelAccuracy(overall, per_class, support, confusion)
-
-
-def normalized_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise normalised correlation (Pearson) of two sets of K-vectors.
-
-    Parameters
-    ----------
-    a, b : (N, K) float ndarray
-
-    Returns
-    -------
-    (N,) float ndarray
-        In [-1, 1]; NaN where either row is constant or has NaN.
-
-    Examples
-    --------
-    >>> normalized_correlation(np.array([[1.0, 0.0, 0.0]]), np.array([[0.9, 0.1, 0.0]])).round(3)
-    array([0.995])
-    """
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    if a.shape != b.shape or a.ndim != 2:
-        raise ValidationError(f"normalized_correlation: shapes {a.shape} and {b.shape} differ")
-    a = a - a.mean(axis=1, keepdims=True)
-    b = b - b.mean(axis=1, keepdims=True)
-    den = np.sqrt(np.sum(a * a, axis=1) * np.sum(b * b, axis=1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(den > 0, np.sum(a * b, axis=1) / den, np.nan)
-
-
-def temporal_consistency(
-    track: np.ndarray,
-    frame: np.ndarray,
-    pooled: np.ndarray,
-    fps: float,
-    seconds: tuple[int, ...] = (1, 3, 5, 7, 9, 11, 13, 15),
-    tolerance_frames: int = 0,
-) -> dict[int, tuple[float, float, int]]:
-    """The paper's Table 1: NC between a trajectory's first pooled confidence and ``s`` seconds later.
-
-    Parameters
-    ----------
-    track : (S,) int ndarray
-        Trajectory of each sample.
-    frame : (S,) int ndarray
-        Frame of each sample.
-    pooled : (S, K) float ndarray
-        Pooled confidences per sample (NaN rows: no camera above the visibility threshold).
-    fps : float
-        Frame rate, to turn seconds into frames.
-    seconds : tuple of int
-        Lags.
-    tolerance_frames : int
-        Accept a sample up to this many frames after the exact lag (when the exact frame has no
-        valid sample).
-
-    Returns
-    -------
-    dict
-        ``{s: (mean NC, std NC, number of trajectories)}``; NaN mean where no trajectory lives
-        that long.
-    """
-    track = np.asarray(track, np.int64)
-    frame = np.asarray(frame, np.int64)
-    pooled = np.asarray(pooled, np.float64)
-    valid = np.all(np.isfinite(pooled), axis=1)
-    track, frame, pooled = track[valid], frame[valid], pooled[valid]
-    order = np.lexsort((frame, track))
-    track, frame, pooled = track[order], frame[order], pooled[order]
-    if len(track) == 0:
-        return {s: (float("nan"), float("nan"), 0) for s in seconds}
-    first_idx = np.concatenate([[0], np.nonzero(np.diff(track))[0] + 1])
-    first_of = np.full(track.max() + 1, -1, np.int64)
-    first_of[track[first_idx]] = first_idx
-    start = first_of[track]  # (S,) index of each sample's trajectory start
-    lag = frame - frame[start]
-    out = {}
-    for s in seconds:
-        target = int(round(s * fps))
-        hit = (lag >= target) & (lag <= target + tolerance_frames)
-        # Keep the earliest hit per trajectory.
-        idx = np.nonzero(hit)[0]
-        if len(idx) == 0:
-            out[s] = (float("nan"), float("nan"), 0)
-            continue
-        _, first = np.unique(track[idx], return_index=True)
-        idx = idx[first]
-        nc = normalized_correlation(pooled[start[idx]], pooled[idx])
-        nc = nc[np.isfinite(nc)]
-        out[s] = (
-            (float(nc.mean()), float(nc.std()), len(nc))
-            if len(nc)
-            else (float("nan"), float("nan"), 0)
-        )
-    return out
 
 
 def disagreement_by_distance(

@@ -21,8 +21,8 @@ import os
 from pathlib import Path
 
 from ..camera import CameraRig
+from ..config import load_toml
 from ..errors import FileFormatError, ValidationError
-from ._common import read_toml
 from .caliscope import is_caliscope_dict, load_caliscope, save_caliscope
 from .colmap import find_colmap_model, load_colmap, save_colmap
 from .panoptic import load_panoptic, save_panoptic
@@ -94,7 +94,7 @@ def detect_format(path: str | os.PathLike) -> str:
     if name.endswith(".json"):
         return "panoptic"
     if name.endswith(".toml"):
-        return "caliscope" if is_caliscope_dict(read_toml(path)) else "toml"
+        return "caliscope" if is_caliscope_dict(load_toml(path)) else "toml"
     if name.endswith((".qca", ".qca.txt", ".xml")) or (name.endswith(".txt") and _is_xml(path)):
         return "qualisys"
     raise FileFormatError(
@@ -145,7 +145,7 @@ def load_rig(path: str | os.PathLike, fmt: str | None = None) -> CameraRig:
         path = path / "camera_array.toml"
     logger.debug("reading %s as %s", path, fmt)
     if fmt == "toml":
-        data = read_toml(path)
+        data = load_toml(path)
         return rig_from_toml_dict(data, path)
     return {
         "caliscope": load_caliscope,

@@ -1,14 +1,10 @@
-"""Helpers shared by the rig format modules: field checks that name the file, a TOML writer."""
+"""Helpers shared by the rig format modules: field checks that name the file, folder outputs."""
 
 from __future__ import annotations
 
-import json
-import math
 import os
-import re
 import shutil
 import tempfile
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -19,8 +15,6 @@ from ..camera import Camera
 from ..errors import FileFormatError, ValidationError
 
 __all__ = [
-    "read_toml",
-    "dump_toml",
     "field_array",
     "field_value",
     "make_camera",
@@ -28,20 +22,6 @@ __all__ = [
     "temp_folder_beside",
     "trim_dist",
 ]
-
-
-def read_toml(path: str | os.PathLike) -> dict[str, Any]:
-    """Parse a TOML file, raising :class:`FileFormatError` when it is missing or malformed."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileFormatError(path, "no such file")
-    try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise FileFormatError(path, f"not valid TOML ({exc})") from None
-    except UnicodeDecodeError as exc:
-        raise FileFormatError(path, f"not a UTF-8 text file ({exc})") from None
 
 
 def field_value(path: str | os.PathLike, table: Mapping[str, Any], key: str, where: str) -> Any:
@@ -130,68 +110,6 @@ def trim_dist(dist: np.ndarray) -> list[float]:
     """The 5 OpenCV coefficients ``k1 k2 p1 p2 k3`` when ``k4..k6`` are zero, else all 8."""
     d = np.asarray(dist, dtype=float)
     return [float(v) for v in (d[:5] if not np.any(d[5:]) else d)]
-
-
-# -- TOML writing ----------------------------------------------------------------------------
-_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
-
-
-def _key(k: str) -> str:
-    return k if _BARE_KEY.match(k) else json.dumps(k)
-
-
-def _value(v: Any) -> str:
-    if isinstance(v, bool | np.bool_):
-        return "true" if v else "false"
-    if isinstance(v, int | np.integer):
-        return str(int(v))
-    if isinstance(v, float | np.floating):
-        f = float(v)
-        if math.isnan(f):
-            return "nan"
-        if math.isinf(f):
-            return "inf" if f > 0 else "-inf"
-        return repr(f)  # shortest string that reads back to the same double
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, np.ndarray):
-        return _value(v.tolist())
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    if isinstance(v, Mapping):
-        return "{" + ", ".join(f"{_key(str(k))} = {_value(x)}" for k, x in v.items()) + "}"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def dump_toml(data: Mapping[str, Any]) -> str:
-    """Serialise nested mappings to TOML text (tables for mappings, inline values otherwise).
-
-    Floats are written with ``repr`` so that they read back bit-exactly.
-
-    Examples
-    --------
-    >>> print(dump_toml({"a": 1, "cam_0": {"size": [4, 3], "x": 0.1}}).strip())
-    a = 1
-    <BLANKLINE>
-    [cam_0]
-    size = [4, 3]
-    x = 0.1
-    """
-    lines: list[str] = []
-    _dump_table(data, [], lines)
-    return "\n".join(lines).lstrip("\n") + "\n"
-
-
-def _dump_table(data: Mapping[str, Any], prefix: list[str], lines: list[str]) -> None:
-    scalars = {k: v for k, v in data.items() if not isinstance(v, Mapping)}
-    tables = {k: v for k, v in data.items() if isinstance(v, Mapping)}
-    if prefix and (scalars or not tables):
-        lines.append("")
-        lines.append("[" + ".".join(_key(p) for p in prefix) + "]")
-    for k, v in scalars.items():
-        lines.append(f"{_key(str(k))} = {_value(v)}")
-    for k, v in tables.items():
-        _dump_table(v, [*prefix, str(k)], lines)
 
 
 # -- folder outputs --------------------------------------------------------------------------

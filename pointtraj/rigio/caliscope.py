@@ -16,10 +16,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ..atomic import write_text_atomic
 from ..camera import CameraRig, rotation_from_rodrigues
+from ..config import load_toml, save_toml
 from ..errors import FileFormatError
-from ._common import dump_toml, field_array, field_value, make_camera, read_toml, trim_dist
+from ._common import field_array, field_value, make_camera, trim_dist
 
 __all__ = ["load_caliscope", "save_caliscope", "is_caliscope_dict"]
 
@@ -75,7 +75,7 @@ def load_caliscope(path: str | os.PathLike) -> CameraRig:
         only intrinsics were calibrated), or a field has the wrong shape or value.
     """
     path = Path(path)
-    data = read_toml(path)
+    data = load_toml(path)
     tables = _camera_tables(data)
     if not tables:
         raise FileFormatError(path, "no [cameras.<id>] or [cam_<id>] camera tables")
@@ -141,4 +141,4 @@ def save_caliscope(rig: CameraRig, path: str | os.PathLike) -> None:
             "translation": cam.t.tolist(),
             "rotation": cam.R.tolist(),
         }
-    write_text_atomic(path, dump_toml({"cameras": cameras}))
+    save_toml(path, {"cameras": cameras})

@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from ..atomic import write_text_atomic
 from ..camera import CameraRig, rodrigues_from_rotation, rotation_from_rodrigues
+from ..config import load_toml, save_toml
 from ..errors import FileFormatError
-from ._common import dump_toml, field_array, field_value, make_camera, read_toml, trim_dist
+from ._common import field_array, field_value, make_camera, trim_dist
 
 __all__ = ["load_rig_toml", "save_rig_toml", "load_rig_toml_metadata", "rig_to_toml_dict"]
 
@@ -50,7 +50,7 @@ def load_rig_toml(path: str | os.PathLike) -> CameraRig:
         matrix of the wrong shape, a non-positive focal length, ...).
     """
     path = Path(path)
-    return rig_from_toml_dict(read_toml(path), path)
+    return rig_from_toml_dict(load_toml(path), path)
 
 
 def rig_from_toml_dict(data: Mapping[str, Any], path: str | os.PathLike) -> CameraRig:
@@ -84,7 +84,7 @@ def rig_from_toml_dict(data: Mapping[str, Any], path: str | os.PathLike) -> Came
 
 def load_rig_toml_metadata(path: str | os.PathLike) -> dict[str, Any]:
     """The optional ``[metadata]`` table of a rig TOML (empty when absent)."""
-    meta = read_toml(path).get("metadata", {})
+    meta = load_toml(path).get("metadata", {})
     if not isinstance(meta, Mapping):
         raise FileFormatError(path, f"metadata: expected a table, got {meta!r}")
     return dict(meta)
@@ -123,5 +123,5 @@ def save_rig_toml(
     metadata : mapping, optional
         Written as a ``[metadata]`` table (strings, numbers, booleans and lists of them).
     """
-    write_text_atomic(path, dump_toml(rig_to_toml_dict(rig, metadata)))
+    save_toml(path, rig_to_toml_dict(rig, metadata))
     logger.debug("wrote %d cameras to %s", len(rig), path)

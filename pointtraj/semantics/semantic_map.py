@@ -18,11 +18,10 @@ as well (:attr:`SemanticMap.samples`). The file format is ``data_specs/semantic_
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -474,7 +473,7 @@ def build_semantic_map(
     config: SemanticsConfig | None = None,
     frames: range | None = None,
     capture_dir: str | os.PathLike | None = None,
-    progress: bool = False,
+    progress: Callable[[str, int, int], None] | None = None,
 ) -> SemanticMap:
     """Build the 3D semantic map of trajectories from a capture's images.
 
@@ -498,8 +497,9 @@ def build_semantic_map(
     capture_dir : path-like, optional
         Capture folder passed to the recogniser in :class:`ImageContext` (default: the
         capture's ``path`` attribute, or ``capture`` itself when it is a path).
-    progress : bool
-        Show a progress bar over frames.
+    progress : callable, optional
+        ``progress("semantic map", done, total)``: ``done`` of the ``total`` frames, from 0
+        before the first frame to ``total`` after the last (the command line draws a bar).
 
     Returns
     -------
@@ -570,60 +570,57 @@ def build_semantic_map(
     )
 
     frames = range(trajectories.num_frames) if frames is None else frames
-    with contextlib.ExitStack() as stack:
-        iterator: Any = frames
-        if progress:
-            import click
-
-            iterator = stack.enter_context(
-                click.progressbar(frames, label="semantic map", show_pos=True)
+    for i, t in enumerate(frames):
+        if progress is not None:
+            progress("semantic map", i, len(frames))
+        fs = trajectories.frame(int(t))
+        N = len(fs.track_id)
+        if N == 0:
+            continue
+        V = fs.visibility  # (N, C)
+        if config.visibility == "geometric":
+            V = geometric_visibility(rig, fs.xyz, V, config)
+        if "average" in pools:
+            needed = np.ones(C, dtype=bool)
+        else:
+            needed = (V > eps).any(axis=0)  # (C,)
+        # This frame's maps, one per camera (coarse: a few MB each); dropped after the frame.
+        maps: list[np.ndarray | None] = [None] * C
+        for c in np.flatnonzero(needed):
+            image = capture.read(names[c], int(t)) if needs_image else None
+            L2D = recognizer.recognize(
+                image, ImageContext(camera=names[c], frame=int(t), capture=ctx_capture)
             )
-        for t in iterator:
-            fs = trajectories.frame(int(t))
-            N = len(fs.track_id)
-            if N == 0:
-                continue
-            V = fs.visibility  # (N, C)
-            if config.visibility == "geometric":
-                V = geometric_visibility(rig, fs.xyz, V, config)
-            if "average" in pools:
-                needed = np.ones(C, dtype=bool)
-            else:
-                needed = (V > eps).any(axis=0)  # (C,)
-            # This frame's maps, one per camera (coarse: a few MB each); dropped after the frame.
-            maps: list[np.ndarray | None] = [None] * C
-            for c in np.flatnonzero(needed):
-                image = capture.read(names[c], int(t)) if needs_image else None
-                L2D = recognizer.recognize(
-                    image, ImageContext(camera=names[c], frame=int(t), capture=ctx_capture)
+            if L2D.ndim != 3 or L2D.shape[2] != K:
+                raise ValidationError(
+                    f"recogniser {recognizer.name!r} returned shape {L2D.shape} for camera "
+                    f"{names[c]!r} frame {t}; expected (h, w, {K})"
                 )
-                if L2D.ndim != 3 or L2D.shape[2] != K:
-                    raise ValidationError(
-                        f"recogniser {recognizer.name!r} returned shape {L2D.shape} for camera "
-                        f"{names[c]!r} frame {t}; expected (h, w, {K})"
-                    )
-                maps[c] = L2D
-            for start in range(0, N, config.chunk_size):
-                sl = slice(start, min(N, start + config.chunk_size))
-                _pool_chunk(
-                    fs.xyz[sl],
-                    V[sl],
-                    fs.track_id[sl],
-                    int(t),
-                    rig,
-                    sizes,
-                    maps,
-                    pools,
-                    eps,
-                    sums,
-                    counts,
-                    slot,
-                    sample_offsets,
-                    first_frame,
-                    samples,
-                    config.background_vote,
-                )
-            del maps
+            maps[c] = L2D
+        for start in range(0, N, config.chunk_size):
+            sl = slice(start, min(N, start + config.chunk_size))
+            _pool_chunk(
+                fs.xyz[sl],
+                V[sl],
+                fs.track_id[sl],
+                int(t),
+                rig,
+                sizes,
+                maps,
+                pools,
+                eps,
+                sums,
+                counts,
+                slot,
+                sample_offsets,
+                first_frame,
+                samples,
+                config.background_vote,
+            )
+        del maps
+
+    if progress is not None:
+        progress("semantic map", len(frames), len(frames))
 
     L3D = {}
     for p in pools:

@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..labelset import BODY_PARTS
 from .objects import BallPath, PartMesh, make_capsule, make_ellipsoid
 
 __all__ = [
-    "BODY_PARTS",
     "BodyShape",
     "Figure",
     "Pose",
@@ -36,24 +36,6 @@ __all__ = [
     "rigid",
     "solve_two_bone",
 ]
-
-#: Body-part class names, in class-index order (the labels.toml contract).
-BODY_PARTS: tuple[str, ...] = (
-    "head",
-    "torso",
-    "left_upper_arm",
-    "right_upper_arm",
-    "left_forearm",
-    "right_forearm",
-    "left_hand",
-    "right_hand",
-    "left_thigh",
-    "right_thigh",
-    "left_shin",
-    "right_shin",
-    "left_foot",
-    "right_foot",
-)
 
 
 def rot_x(a: float) -> np.ndarray:
@@ -120,7 +102,7 @@ def build_body_meshes(shape: BodyShape) -> dict[str, PartMesh]:
     Returns
     -------
     dict
-        Part name (:data:`BODY_PARTS`) -> :class:`PartMesh`.
+        Part name (:data:`pointtraj.labelset.BODY_PARTS`) -> :class:`PartMesh`.
     """
     tr = shape.torso_radii
     meshes = {

@@ -37,7 +37,7 @@ __all__ = [
     "save_label_map",
     "save_depth_map",
     "sample_ground_truth_points",
-    "compute_visibility",
+    "visibility_from_depth_maps",
     "visibility_in_view",
     "visibility_exact",
     "VISIBILITY_TOLERANCE",
@@ -224,7 +224,7 @@ def visibility_in_view(
     return vis
 
 
-def compute_visibility(
+def visibility_from_depth_maps(
     rig: CameraRig,
     xyz: np.ndarray,
     depth_maps: list[np.ndarray],
@@ -233,7 +233,11 @@ def compute_visibility(
     geometry: np.ndarray | None = None,
     geometry_maps: list[np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Which points each camera sees (see :func:`visibility_in_view`).
+    """Which points each camera sees, by testing them against its ray-cast depth maps
+    (:func:`visibility_in_view` per camera).
+
+    A 0/1 ground-truth visibility; the paper's soft ``V(X, c)`` of a reconstruction is
+    :func:`pointtraj.reconstruct.triangulate.compute_visibility`.
 
     Parameters
     ----------

@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import remove_stale_temporaries, write_text_atomic
+from ..atomic import remove_stale_temporaries
 from ..camera import CameraRig
+from ..config import load_toml, save_toml
 from ..errors import ValidationError
 from .scenes import Scene
 
@@ -467,12 +468,6 @@ class CaptureSummary:
         return self.seconds / self.rendered if self.rendered else float("nan")
 
 
-def _synth_settings_text(params: dict[str, object]) -> str:
-    return "".join(
-        f"{k} = {v!r}\n" if isinstance(v, str) else f"{k} = {v}\n" for k, v in params.items()
-    )
-
-
 def render_capture(
     out: str | os.PathLike,
     *,
@@ -549,9 +544,7 @@ def render_capture(
         raise ValidationError(f"{out} is a file; the output must be a folder")
     marker = out / "gt" / "synth.toml"
     if marker.is_file():
-        from ..rigio._common import read_toml
-
-        old = read_toml(marker)
+        old = load_toml(marker)
         diff = [k for k, v in params.items() if old.get(k) != v]
         if diff:
             raise ValidationError(
@@ -572,14 +565,19 @@ def render_capture(
             f"{out} exists and is not a synthetic capture; choose an empty folder"
         )
     cap = Capture.create(out, rig, fps, image_format=image_format)
-    write_text_atomic(
+    save_toml(
         out / "capture.toml",
-        f"fps = {float(fps)!r}\nimage_format = {image_format!r}\n"
-        f'source = "pointtraj synth"\n'
-        f'description = "synthetic capture: scene {scene}, rig preset {preset}, seed {int(seed)},'
-        f' {frames} frames"\n',
+        {
+            "fps": float(fps),
+            "image_format": image_format,
+            "source": "pointtraj synth",
+            "description": (
+                f"synthetic capture: scene {scene}, rig preset {preset}, seed {int(seed)}, "
+                f"{frames} frames"
+            ),
+        },
     )
-    write_text_atomic(marker, _synth_settings_text({**params, "frames": frames, "fps": fps}))
+    save_toml(marker, {**params, "frames": frames, "fps": fps})
     LabelSet(
         sc.class_names,
         sc.class_colors,

@@ -27,8 +27,8 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import ValidationError
+from ..labelset import BODY_PARTS
 from .figure import (
-    BODY_PARTS,
     Figure,
     Pose,
     make_dribble_motion,

@@ -17,25 +17,11 @@ from click.testing import CliRunner
 
 from pointtraj import models
 from pointtraj.errors import ValidationError
+from pointtraj.labelset import BODY_PARTS
 from pointtraj.models import ModelNotFoundError, fetch_model, locate_model
 
 IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images"
-PARTS = [
-    "head",
-    "torso",
-    "left_upper_arm",
-    "right_upper_arm",
-    "left_forearm",
-    "right_forearm",
-    "left_hand",
-    "right_hand",
-    "left_thigh",
-    "right_thigh",
-    "left_shin",
-    "right_shin",
-    "left_foot",
-    "right_foot",
-]
+PARTS = list(BODY_PARTS)
 
 # Points annotated by hand on the half-resolution frames (x, y pixels) -> the true part.
 # cam01 sees the person from the front (their left is on the image's right), cam03 from behind.

@@ -302,6 +302,45 @@ def test_temporal_consistency_and_nc(scene):
     assert nc[0] == pytest.approx(1.0) and np.isnan(nc[1])
 
 
+def test_normalized_correlation_properties():
+    rng = np.random.default_rng(0)
+    a = rng.random((50, 8))
+    np.testing.assert_allclose(normalized_correlation(a, a), 1.0)
+    np.testing.assert_allclose(normalized_correlation(a, 3 * a + 1), 1.0)
+    np.testing.assert_allclose(normalized_correlation(a, -a), -1.0)
+    ref = np.array([np.corrcoef(x, y)[0, 1] for x, y in zip(a, a[::-1])])
+    np.testing.assert_allclose(normalized_correlation(a, a[::-1]), ref)
+    assert np.isnan(normalized_correlation(np.ones((1, 3)), a[:1, :3]))[0]
+
+
+def test_temporal_consistency_lags():
+    """Hand-made samples: NC per lag, a missing sample left out, trajectories too short."""
+    # Trajectory 0: constant confidences for 10 frames -> NC 1 at every lag it reaches.
+    # Trajectory 1: switches to an anti-correlated vector after 2 frames.
+    v = np.array([1.0, 0.0, 0.0, 0.0])
+    w = np.array([0.0, 1.0, 1.0, 1.0])
+    pooled = np.r_[np.tile(v, (10, 1)), np.tile(v, (2, 1)), np.tile(w, (4, 1))]
+    pooled[13] = np.nan  # a missing sample (trajectory 1, lag 3)
+    smap = SemanticMap(
+        class_names=("a", "b", "c", "d"),
+        L3D={"view": np.zeros((2, 4), np.float32)},
+        count={"view": np.zeros(2, np.int32)},
+        sample_tracks=np.array([0, 1]),
+        sample_offsets=np.array([0, 10, 16]),
+        sample_first_frame=np.array([0, 3]),
+        samples={"view": pooled.astype(np.float32)},
+    )
+    assert smap.temporal_consistency(2) == pytest.approx((0.0, 1.0, 2))
+    assert smap.temporal_consistency(3) == (1.0, 0.0, 1)  # trajectory 1's sample is missing
+    assert smap.temporal_consistency(4)[2] == 2
+    assert smap.temporal_consistency(8) == (1.0, 0.0, 1)  # only trajectory 0 lives 9 frames
+    mean, _, n = smap.temporal_consistency(10)
+    assert n == 0 and np.isnan(mean)
+    tracks, nc = smap.first_frame_nc(2)
+    assert tracks.tolist() == [0, 1]
+    np.testing.assert_allclose(nc, [1.0, -1.0])
+
+
 def test_save_load_round_trip(scene, tmp_path):
     rig, traj, label = scene
     smap = build_semantic_map(FakeCapture(rig), traj, RasterRecognizer(rig, traj, label))
@@ -374,7 +413,11 @@ def test_errors(scene):
 def test_frame_subset_and_progress(scene, capsys):
     rig, traj, label = scene
     rec = RasterRecognizer(rig, traj, label)
-    smap = build_semantic_map(FakeCapture(rig), traj, rec, frames=range(2, 4), progress=True)
+    calls = []
+    smap = build_semantic_map(
+        FakeCapture(rig), traj, rec, frames=range(2, 4), progress=lambda *a: calls.append(a)
+    )
+    assert calls == [("semantic map", 0, 2), ("semantic map", 1, 2), ("semantic map", 2, 2)]
     assert {t for _, t in rec.calls} == {2, 3}
     alive = (traj.first_frame <= 3) & (traj.last_frame >= 2)
     expected = np.minimum(traj.last_frame, 3) - np.maximum(traj.first_frame, 2) + 1

@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import click
 
-from .cli_common import ProgressBars, cli_errors
-from .errors import PointtrajError
+from .common import ProgressBars, cli_errors
 
 __all__ = ["run", "demo"]
-
-logger = logging.getLogger(__name__)
 
 
 def _announce(stage: str, event: str) -> None:
@@ -24,7 +20,7 @@ def _announce(stage: str, event: str) -> None:
 
 def run_and_report(config, force: tuple[str, ...] = (), force_folder: bool = False):
     """Run a pipeline with progress bars; turn library errors into one-line CLI errors."""
-    from .pipeline import run_pipeline
+    from ..pipeline import run_pipeline
 
     bars = ProgressBars()
 
@@ -87,12 +83,9 @@ def run(
 
     Relative paths in CONFIG are taken from the current folder. An interrupted run resumes.
     """
-    from .pipeline import load_pipeline
+    from ..pipeline import load_pipeline
 
-    try:
-        config = load_pipeline(config_path).with_paths(capture, work)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
+    config = load_pipeline(config_path).with_paths(capture, work)
     click.echo(f"pipeline {config.name or config_path.stem}: work folder {config.work}", err=True)
     result = run_and_report(config, force, force_folder)
     for line in _summary(result):
@@ -120,7 +113,7 @@ def demo(out: Path, frames: int | None, force: tuple[str, ...]) -> None:
 
     The same as `pointtraj run pipelines/synthetic_demo.toml` with its folders under --out.
     """
-    from .pipeline import demo_pipeline
+    from ..pipeline import demo_pipeline
 
     config = demo_pipeline(out, frames=frames)
     click.echo(f"pointtraj demo: {config.description}", err=True)
@@ -134,7 +127,7 @@ def _headline(result) -> None:
     """Print the report's main figures, if the evaluate stage wrote them."""
     import json
 
-    from .evaluate.study import headline
+    from ..evaluate.study import headline
 
     path = result.outputs.get("report")
     if path is None or not (path.parent / "metrics.json").is_file():

@@ -5,8 +5,6 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from .errors import PointtrajError
-
 __all__ = ["rig"]
 
 _FORMATS = ("toml", "caliscope", "colmap", "panoptic", "qualisys")
@@ -31,13 +29,10 @@ def rig() -> None:
 )
 def convert(src: str, dst: str, src_fmt: str | None, dst_fmt: str | None) -> None:
     """Read the rig SRC and write it to DST in another format."""
-    from .rigio import load_rig, save_rig
+    from ..rigio import load_rig, save_rig
 
-    try:
-        cams = load_rig(src, fmt=src_fmt)
-        save_rig(cams, dst, fmt=dst_fmt)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
+    cams = load_rig(src, fmt=src_fmt)
+    save_rig(cams, dst, fmt=dst_fmt)
     click.echo(f"wrote {len(cams)} cameras to {dst}")
 
 
@@ -48,13 +43,10 @@ def convert(src: str, dst: str, src_fmt: str | None, dst_fmt: str | None) -> Non
 )
 def show(path: str, src_fmt: str | None) -> None:
     """Print a summary of the rig in PATH: one line per camera."""
-    from .rigio import detect_format, load_rig
+    from ..rigio import detect_format, load_rig
 
-    try:
-        fmt = src_fmt or detect_format(path)
-        cams = load_rig(path, fmt=fmt)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
+    fmt = src_fmt or detect_format(path)
+    cams = load_rig(path, fmt=fmt)
     click.echo(f"{path}: {fmt}, {len(cams)} cameras")
     click.echo(
         f"{'name':<16} {'size':>11} {'fx':>9} {'fy':>9} {'cx':>8} {'cy':>8} "
@@ -94,15 +86,11 @@ def info(path: str, voxel: float, radius: float, height: float, out: str | None)
     """Coverage of the capture volume by the rig in PATH: camera counts and pixel density."""
     from pathlib import Path
 
-    from .rig_analysis import CaptureVolume, analyze_rig, plot_coverage
-    from .rigio import load_rig
+    from ..rig_analysis import CaptureVolume, analyze_rig, plot_coverage
+    from ..rigio import load_rig
 
-    try:
-        cams = load_rig(path)
-        volume = CaptureVolume(radius=radius, height=height)
-        coverage = analyze_rig(cams, volume, voxel)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
+    cams = load_rig(path)
+    coverage = analyze_rig(cams, CaptureVolume(radius=radius, height=height), voxel)
     click.echo(f"{path}: {len(cams)} cameras")
     click.echo(coverage.report())
     if out is not None:

@@ -1,34 +1,13 @@
-"""``pointtraj reconstruct CAPTURE --out WORK``: dense 3D trajectories from a capture."""
+"""The trajectories stage: ``pointtraj reconstruct CAPTURE --out WORK`` (dense 3D trajectories
+from the images) and ``pointtraj gt-trajectories`` (a synthetic capture's ground truth instead)."""
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import click
 
-__all__ = ["reconstruct", "load_reconstruct_config"]
-
-logger = logging.getLogger(__name__)
-
-
-def load_reconstruct_config(path: str | Path | None):
-    """A :class:`ReconstructConfig` from a TOML file (table ``[reconstruct]`` or top level).
-
-    Unknown keys are an error naming the file and the key.
-    """
-    from ..config import from_mapping, load_toml
-    from ..errors import FileFormatError
-    from .track import ReconstructConfig
-
-    if path is None:
-        return ReconstructConfig()
-    data = load_toml(path)
-    table = data.get("reconstruct", data) if isinstance(data.get("reconstruct"), dict) else data
-    try:
-        return from_mapping(ReconstructConfig, table, where="[reconstruct]")
-    except ValueError as exc:
-        raise FileFormatError(path, str(exc)) from None
+__all__ = ["reconstruct", "gt_trajectories"]
 
 
 @click.command("reconstruct")
@@ -70,8 +49,10 @@ def reconstruct(
     Writes WORK/work.toml, WORK/clouds/<frame>.ply per frame, WORK/state/ (resume points) and
     WORK/trajectories.npz. A restart removes only the files pointtraj wrote there.
     """
-    from ..cli_common import cli_errors, progress_bars
-    from ..stages import reconstruct_work
+    import numpy as np
+
+    from ..stages import load_reconstruct_config, reconstruct_work
+    from .common import cli_errors, progress_bars
 
     with cli_errors(work), progress_bars() as bars:
         cfg = load_reconstruct_config(config_path)
@@ -86,13 +67,36 @@ def reconstruct(
             progress=bars,
         )
     first = int(traj.first_frame.min()) if traj.num_trajectories else 0
+    median = float(np.median(traj.lengths)) if len(traj.lengths) else 0.0
     click.echo(
         f"{traj.num_trajectories} trajectories, {traj.num_point_frames} point-frames over "
-        f"frames {first}:{traj.num_frames} (median length {_median(traj.lengths):.0f}) -> {work}"
+        f"frames {first}:{traj.num_frames} (median length {median:.0f}) -> {work}"
     )
 
 
-def _median(a) -> float:
-    import numpy as np
+@click.command("gt-trajectories")
+@click.argument("capture", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option(
+    "--out",
+    "work",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Work folder to write trajectories.npz and work.toml into.",
+)
+@click.option(
+    "--min-visible",
+    default=2,
+    show_default=True,
+    type=click.IntRange(1),
+    help="Keep point-frames seen by at least this many cameras.",
+)
+def gt_trajectories(capture: Path, work: Path, min_visible: int) -> None:
+    """Write a synthetic CAPTURE's ground-truth trajectories into a work folder."""
+    from ..stages import ground_truth_work
+    from ..workdir import WorkFolder
 
-    return float(np.median(a)) if len(a) else 0.0
+    try:
+        ground_truth_work(work, capture, min_visible)
+    except ImportError as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(f"wrote {WorkFolder(work).trajectories}")

@@ -1,27 +1,12 @@
-"""The ``pointtraj synth`` and ``pointtraj demo`` commands."""
+"""``pointtraj synth``: render a synthetic capture with ground truth (``stages.synthesize``)."""
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import click
 
-from ..errors import PointtrajError
-
 __all__ = ["synth"]
-
-logger = logging.getLogger(__name__)
-
-
-def _choices(kind: str) -> list[str]:
-    if kind == "preset":
-        from .presets import PRESETS
-
-        return sorted(PRESETS)
-    from .scenes import SCENES
-
-    return sorted(SCENES)
 
 
 def _summary_lines(summary) -> list[str]:
@@ -81,9 +66,10 @@ def synth(
     list_: bool,
 ) -> None:
     """Render a synthetic multi-camera capture with ground-truth trajectories."""
-    from .presets import PRESETS
-    from .render import render_capture
-    from .scenes import SCENES
+    from ..stages import SynthConfig, synthesize
+    from ..synth.presets import PRESETS
+    from ..synth.scenes import SCENES
+    from .common import progress_bars
 
     if list_:
         for name, p in sorted(PRESETS.items()):
@@ -95,12 +81,12 @@ def synth(
         raise click.UsageError("Missing option '--out'.")
     if preset not in PRESETS:
         raise click.BadParameter(
-            f"unknown preset {preset!r}; choose one of {', '.join(_choices('preset'))}",
+            f"unknown preset {preset!r}; choose one of {', '.join(sorted(PRESETS))}",
             param_hint="--preset",
         )
     if scene not in SCENES:
         raise click.BadParameter(
-            f"unknown scene {scene!r}; choose one of {', '.join(_choices('scene'))}",
+            f"unknown scene {scene!r}; choose one of {', '.join(sorted(SCENES))}",
             param_hint="--scene",
         )
     if frames < 1:
@@ -109,19 +95,16 @@ def synth(
         raise click.BadParameter(
             f"must be at least 1, got {points_per_part}", param_hint="--points-per-part"
         )
-    try:
-        with click.progressbar(length=frames, label=f"rendering {scene} ({preset})") as bar:
-            summary = render_capture(
-                out,
-                preset=preset,
-                scene=scene,
-                frames=frames,
-                seed=seed,
-                points_per_part=points_per_part,
-                image_format=image_format,
-                on_frame=lambda t, rendered: bar.update(1),
-            )
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
+    config = SynthConfig(
+        preset=preset,
+        scene=scene,
+        frames=frames,
+        seed=seed,
+        points_per_part=points_per_part,
+        image_format=image_format,
+    )
+    label = f"rendering {scene} ({preset})"
+    with progress_bars() as bars:
+        summary = synthesize(out, config, progress=lambda _, done, total: bars(label, done, total))
     for line in _summary_lines(summary):
         click.echo(line)

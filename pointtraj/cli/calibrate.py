@@ -2,18 +2,13 @@
 
 from __future__ import annotations
 
-import logging
 import tempfile
 from pathlib import Path
 
 import click
 import numpy as np
 
-from .errors import PointtrajError
-
 __all__ = ["calibrate"]
-
-logger = logging.getLogger(__name__)
 
 
 def _parse_frames(text: str | None, num_frames: int) -> list[int]:
@@ -41,7 +36,7 @@ def _placeholder_rig(capture: Path):
     capture without ``rig.toml`` can be opened (only names and image sizes are used)."""
     import cv2
 
-    from .camera import Camera, CameraRig
+    from ..camera import Camera, CameraRig
 
     cams = []
     frames = capture / "frames"
@@ -144,59 +139,54 @@ def calibrate(
     world frame. Beside OUT it writes <stem>_connectivity.png/.json: the geometric camera graph
     confirmed by verified match counts.
     """
-    from . import calibrate as cal_lib
-    from .session import Capture
+    from .. import calibrate as cal_lib
+    from ..session import Capture
 
     if sum(x is not None for x in (scale_distance, charuco, align_to)) > 1 and method == "sfm":
         raise click.UsageError("give only one of --scale-distance, --charuco and --align-to")
     if method == "charuco" and charuco is None:
         raise click.UsageError("--method charuco needs --charuco BOARD.toml")
-    try:
-        rig_file = capture / "rig.toml"
-        cap = Capture.open(
-            capture, rig=None if rig_file.is_file() else _placeholder_rig(capture), strict=False
-        )
-        frames = _parse_frames(frames_text, cap.num_frames)
-        board = cal_lib.CharucoBoard.from_toml(charuco) if charuco is not None else None
-        with tempfile.TemporaryDirectory(prefix="pointtraj-calib-") as tmp:
-            scratch = work or Path(tmp)
-            image_dir = scratch / "images"
-            n = len(frames) * len(cap.camera_names)
+    rig_file = capture / "rig.toml"
+    cap = Capture.open(
+        capture, rig=None if rig_file.is_file() else _placeholder_rig(capture), strict=False
+    )
+    frames = _parse_frames(frames_text, cap.num_frames)
+    board = cal_lib.CharucoBoard.from_toml(charuco) if charuco is not None else None
+    with tempfile.TemporaryDirectory(prefix="pointtraj-calib-") as tmp:
+        scratch = work or Path(tmp)
+        image_dir = scratch / "images"
+        n = len(frames) * len(cap.camera_names)
+        with click.progressbar(
+            cal_lib.export_frames(cap, frames, image_dir),
+            length=n,
+            label=f"exporting {len(frames)} frame(s) of {len(cap.camera_names)} cameras",
+        ) as bar:
+            for _ in bar:
+                pass
+        detections = {}
+        if board is not None:
             with click.progressbar(
-                cal_lib.export_frames(cap, frames, image_dir),
-                length=n,
-                label=f"exporting {len(frames)} frame(s) of {len(cap.camera_names)} cameras",
+                [(c, f) for c in range(len(cap.camera_names)) for f in frames],
+                label="detecting ChArUco corners",
             ) as bar:
-                for _ in bar:
-                    pass
-            detections = {}
-            if board is not None:
-                with click.progressbar(
-                    [(c, f) for c in range(len(cap.camera_names)) for f in frames],
-                    label="detecting ChArUco corners",
-                ) as bar:
-                    for c, f in bar:
-                        detections[(c, f)] = cal_lib.detect_charuco(cap.read(c, f), board)
-            if method == "charuco":
-                click.echo("calibrating from ChArUco corners (joint bundle adjustment)")
-                sizes = [cap.image_size(c) for c in cap.camera_names]
-                result, stats = cal_lib.calibrate_charuco(
-                    detections, board, cap.camera_names, sizes
-                )
-                click.echo(f"ChArUco bundle adjustment: {stats['rms_px']:.3f} px RMS")
-            else:
-                options = cal_lib.CalibrationOptions(
-                    camera_model=camera_model, refine_principal_point=refine_principal_point
-                )
-                result = cal_lib.calibrate_images(
-                    image_dir, scratch / "colmap", options, stage=click.echo
-                )
-                result = _set_frame(result, cal_lib, scale_distance, board, detections, align_to)
-        click.echo(result.summary())
-        _save(result, out, method, frames)
-        _connectivity(result, out, max_angle)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
+                for c, f in bar:
+                    detections[(c, f)] = cal_lib.detect_charuco(cap.read(c, f), board)
+        if method == "charuco":
+            click.echo("calibrating from ChArUco corners (joint bundle adjustment)")
+            sizes = [cap.image_size(c) for c in cap.camera_names]
+            result, stats = cal_lib.calibrate_charuco(detections, board, cap.camera_names, sizes)
+            click.echo(f"ChArUco bundle adjustment: {stats['rms_px']:.3f} px RMS")
+        else:
+            options = cal_lib.CalibrationOptions(
+                camera_model=camera_model, refine_principal_point=refine_principal_point
+            )
+            result = cal_lib.calibrate_images(
+                image_dir, scratch / "colmap", options, stage=click.echo
+            )
+            result = _set_frame(result, cal_lib, scale_distance, board, detections, align_to)
+    click.echo(result.summary())
+    _save(result, out, method, frames)
+    _connectivity(result, out, max_angle)
     click.echo(f"wrote {len(result.rig)} cameras to {out}")
 
 
@@ -219,7 +209,7 @@ def _set_frame(result, cal_lib, scale_distance, board, detections, align_to):
             f"{100 * stats['scale_spread']:.2f} %",
         )
     if align_to is not None:
-        from .rigio import load_rig
+        from ..rigio import load_rig
 
         fit = cal_lib.estimate_rig_similarity(result.rig, load_rig(align_to))
         rig = cal_lib.transform_rig(result.rig, *fit.similarity)
@@ -239,7 +229,7 @@ def _set_frame(result, cal_lib, scale_distance, board, detections, align_to):
 
 
 def _save(result, out: Path, method: str, frames: list[int]) -> None:
-    from .rigio.toml import save_rig_toml
+    from ..rigio.toml import save_rig_toml
 
     errs = [v for v in result.errors.values() if np.isfinite(v)]
     meta = {
@@ -256,7 +246,7 @@ def _save(result, out: Path, method: str, frames: list[int]) -> None:
 
 def _connectivity(result, out: Path, max_angle: float) -> None:
     """Geometric graph confirmed by the pairwise match counts; PNG + JSON beside ``out``."""
-    from .reconstruct.connectivity import build_connectivity, confirm_connectivity
+    from ..reconstruct.connectivity import build_connectivity, confirm_connectivity
 
     rig = result.rig
     idx = [result.camera_names.index(n) for n in rig.names]

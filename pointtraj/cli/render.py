@@ -46,19 +46,6 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _load_config(path: Path | None, overrides: dict):
-    """A RenderConfig from ``[render]`` of a TOML file plus the options given on the command line."""
-    from .config import from_mapping, load_toml
-    from .render import RenderConfig
-
-    data = dict(load_toml(path).get("render", {})) if path is not None else {}
-    data.update({k: v for k, v in overrides.items() if v is not None})
-    try:
-        return from_mapping(RenderConfig, data, where=f"{path or 'options'} [render]")
-    except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
-
-
 @click.command("render")
 @click.argument("work", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option(
@@ -116,7 +103,8 @@ def render(
     images (renders/overlays/) and renders/legend.png. Frames already rendered with the same
     settings are kept, so a rerun resumes.
     """
-    from .render import render_work
+    from ..render import RenderConfig, render_work
+    from .common import cli_errors, config_from, progress_bars
 
     options.update(
         views=views or None,
@@ -126,25 +114,9 @@ def render(
         overlays=False if no_overlays else None,
         video=False if no_video else None,
     )
-    cfg = _load_config(config_path, options)
-    bar = None
-
-    def progress(name: str, done: int, total: int) -> None:
-        nonlocal bar
-        if bar is None:
-            bar = click.progressbar(length=total, label="render")
-            bar.__enter__()
-        bar.label = name
-        bar.update(done - bar.pos)
-
-    from .cli_common import cli_errors
-
-    try:
-        with cli_errors(work):
-            result = render_work(work, cfg, force=force, progress=progress)
-    finally:
-        if bar is not None:
-            bar.__exit__(None, None, None)
+    cfg = config_from(RenderConfig, config_path, "render", options)
+    with cli_errors(work), progress_bars() as bars:
+        result = render_work(work, cfg, force=force, progress=bars)
     f = result.frames
     click.echo(
         f"{result.num_trajectories} trajectories coloured by {result.color_source} "

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import click
 
-from .errors import PointtrajError
-
 __all__ = ["examples"]
 
 
@@ -17,7 +15,7 @@ def examples() -> None:
 @examples.command("list")
 def list_examples() -> None:
     """List the example captures with their source and licence."""
-    from .examples import EXAMPLES
+    from ..examples import EXAMPLES
 
     for spec in EXAMPLES.values():
         click.echo(f"{spec.name}: {spec.description}")
@@ -53,7 +51,7 @@ def fetch(
     name: str, out: str, force: bool, wheel: str | None, source: str | None, copy: bool
 ) -> None:
     """Lay out example NAME as a capture in OUT (see `pointtraj examples list`)."""
-    from .examples import EXAMPLES, fetch_caliscope_board, fetch_pose2sim
+    from ..examples import EXAMPLES, fetch_example
 
     if name not in EXAMPLES:
         raise click.UsageError(
@@ -63,13 +61,8 @@ def fetch(
         raise click.UsageError("--wheel applies to the pose2sim example only")
     if name != "caliscope-board" and (source is not None or copy):
         raise click.UsageError("--source and --copy apply to the caliscope-board example only")
-    try:
-        if name == "pose2sim":
-            result = fetch_pose2sim(out, wheel=wheel, overwrite=force)
-        else:
-            result = fetch_caliscope_board(out, source=source, link=not copy, overwrite=force)
-    except PointtrajError as exc:
-        raise click.ClickException(str(exc)) from None
+    options = {"wheel": wheel} if name == "pose2sim" else {"source": source, "link": not copy}
+    result = fetch_example(name, out, overwrite=force, **options)
     counts = ", ".join(f"{k}={v}" for k, v in result.num_frames.items())
     click.echo(f"{result.name}: {result.path} ({len(result.camera_names)} cameras, {counts})")
     click.echo(f"fps: {result.fps:.3f}")

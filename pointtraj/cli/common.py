@@ -1,0 +1,122 @@
+"""What every ``pointtraj`` command shares: config loading, one-line errors and progress bars.
+
+Library code reports progress through a ``progress(label, done, total)`` callable and raises
+:class:`~pointtraj.errors.PointtrajError`; the commands turn both into what a terminal user
+expects with :func:`cli_errors` and :class:`ProgressBars`. A command's ``--config`` TOML table
+plus its options become the stage's typed config through :func:`config_from`.
+
+The root group (:mod:`pointtraj.cli`) runs every command inside :func:`cli_errors`, so a
+command needs it only to name a default path for OS errors without a file name.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import click
+
+from ..errors import PointtrajError, os_error_message
+
+__all__ = ["ProgressBars", "cli_errors", "config_from", "progress_bars"]
+
+T = TypeVar("T")
+
+
+def config_from(
+    cls: type[T], path: Path | None, table: str, overrides: Mapping[str, Any] | None = None
+) -> T:
+    """Config dataclass ``cls`` from table ``[table]`` of a TOML file plus command-line options.
+
+    Parameters
+    ----------
+    cls : type
+        A config dataclass (:func:`pointtraj.config.from_mapping` builds it).
+    path : pathlib.Path or None
+        The ``--config`` file (a pipeline file works); None: options and defaults only.
+    table : str
+        The table read from it (a missing table is empty).
+    overrides : mapping, optional
+        Option name -> value; None values (options not given) are left out.
+
+    Returns
+    -------
+    cls
+
+    Raises
+    ------
+    click.UsageError
+        If the file is unreadable or invalid TOML, or a key or value is wrong (one line).
+    """
+    from ..config import from_mapping, load_toml
+
+    data: dict[str, Any] = {}
+    if path is not None:
+        try:
+            doc = load_toml(path)
+        except PointtrajError as exc:  # unreadable or invalid TOML: one line, no traceback
+            raise click.UsageError(str(exc)) from None
+        data = dict(doc.get(table, {}))
+    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    try:
+        return from_mapping(cls, data, where=f"{path or 'options'} [{table}]")
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+
+
+class ProgressBars:
+    """A ``progress(label, done, total)`` callable that shows one click progress bar per step.
+
+    A new label closes the previous bar and opens a new one; :meth:`close` ends the last.
+    """
+
+    def __init__(self) -> None:
+        self._bar = None
+        self._label: str | None = None
+        self._done = 0
+
+    def __call__(self, label: str, done: int, total: int) -> None:
+        if label != self._label or self._bar is None:
+            self.close()
+            self._bar = click.progressbar(
+                length=max(int(total), 1), label=f"  {label}", show_pos=True, file=sys.stderr
+            )
+            self._bar.__enter__()
+            self._label, self._done = label, 0
+        step = int(done) - self._done
+        if step > 0:
+            self._bar.update(step)
+            self._done = int(done)
+
+    def close(self) -> None:
+        """Finish the bar on screen, if any."""
+        if self._bar is not None:
+            self._bar.__exit__(None, None, None)
+        self._bar, self._label = None, None
+
+
+@contextlib.contextmanager
+def progress_bars() -> Iterator[ProgressBars]:
+    """A :class:`ProgressBars` closed on exit."""
+    bars = ProgressBars()
+    try:
+        yield bars
+    finally:
+        bars.close()
+
+
+@contextlib.contextmanager
+def cli_errors(default_path: str | os.PathLike = ".") -> Iterator[None]:
+    """Turn pointtraj's errors and OS errors into one-line click errors (exit code 1).
+
+    ``default_path`` is named for an OS error that carries no file name."""
+    try:
+        yield
+    except PointtrajError as exc:
+        raise click.ClickException(str(exc)) from None
+    except OSError as exc:
+        raise click.ClickException(os_error_message(exc, default_path)) from None

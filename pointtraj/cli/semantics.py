@@ -1,0 +1,112 @@
+"""``pointtraj semantics WORK``: the 3D semantic map (``WORK/semantic_map.npz``)."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import click
+
+__all__ = ["semantics"]
+
+
+def _parse_options(options: tuple[str, ...]) -> dict[str, Any]:
+    """``KEY=VALUE`` pairs, each VALUE read as a TOML value (bare words are strings)."""
+    parsed: dict[str, Any] = {}
+    for item in options:
+        key, sep, value = item.partition("=")
+        key = key.strip().replace("-", "_")
+        if not sep or not key:
+            raise click.UsageError(f"--option {item!r}: expected KEY=VALUE")
+        try:
+            parsed[key] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            parsed[key] = value
+    return parsed
+
+
+@click.command("semantics")
+@click.argument("work", type=click.Path(file_okay=False, path_type=Path))
+@click.option(
+    "--recognizer",
+    "-r",
+    "recognizer_name",
+    required=True,
+    help="Recogniser name (simulated, precomputed, onnx-segmentation, onnx-detection, "
+    "body-parts, object-detector).",
+)
+@click.option(
+    "--capture",
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+    help="Capture folder (default: the one recorded in WORK/work.toml).",
+)
+@click.option(
+    "--option",
+    "-o",
+    "options",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Recogniser option, e.g. -o noise=high or -o directory=maps (repeatable).",
+)
+@click.option(
+    "--pooling",
+    "poolings",
+    multiple=True,
+    help="Pooling method(s); the first is the map's default [default: view, average].",
+)
+@click.option("--eps-e", type=float, default=None, help="Visibility threshold ε_e [default: 0.1].")
+@click.option(
+    "--background-vote",
+    type=float,
+    default=None,
+    help="Pool a point-frame as nothing when at least this fraction of its cameras see no class "
+    "there (silhouette consistency; 0.5 suits real recognisers on sparse rigs) [default: 0, off].",
+)
+@click.option(
+    "--from-ground-truth",
+    is_flag=True,
+    help="If WORK has no trajectories.npz, create it from the capture's gt/ first.",
+)
+def semantics(
+    work: Path,
+    recognizer_name: str,
+    capture: Path | None,
+    options: tuple[str, ...],
+    poolings: tuple[str, ...],
+    eps_e: float | None,
+    background_vote: float | None,
+    from_ground_truth: bool,
+) -> None:
+    """Build WORK/semantic_map.npz: recognise every image, view-pool, average over time."""
+    from ..semantics.semantic_map import SemanticsConfig
+    from ..stages import SemanticsStageConfig, ground_truth_work, semantics_work
+    from ..workdir import WorkFolder
+    from .common import progress_bars
+
+    wf = WorkFolder(work)
+    capture = capture or wf.capture_path()
+    if capture is None:
+        raise click.UsageError(f"{work}: no work.toml recording the capture; pass --capture")
+    if not wf.trajectories.is_file():
+        if not from_ground_truth:
+            raise click.ClickException(
+                f"{wf.trajectories}: no such file (reconstruct first, or pass "
+                "--from-ground-truth for a synthetic capture)"
+            )
+        ground_truth_work(work, capture)
+    config = SemanticsStageConfig(
+        recognizer=recognizer_name,
+        options=_parse_options(options),
+        poolings=tuple(poolings) or SemanticsConfig().poolings,
+        **({"eps_e": eps_e} if eps_e is not None else {}),
+        **({"background_vote": background_vote} if background_vote is not None else {}),
+    )
+    with progress_bars() as bars:
+        smap = semantics_work(work, config, capture, progress=bars)
+    p = smap.poolings[0]
+    seen = int((smap.count[p] > 0).sum())
+    click.echo(
+        f"wrote {wf.semantic_map}: {smap.num_trajectories} trajectories ({seen} with a pooled "
+        f"frame), {len(smap.class_names)} classes, poolings {', '.join(smap.poolings)}"
+    )
