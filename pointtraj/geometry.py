@@ -295,7 +295,9 @@ def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray) -> np.ndarray:
     -------
     (..., N, 2) float ndarray
         Undistorted normalised coordinates; ``distort_normalized`` of them returns ``xy_d`` to
-        about 1e-15 inside the lens's monotonic range (``benchmarks/bench_undistort.py``).
+        about 1e-15 wherever the iteration reaches the solution: everywhere inside the image for
+        the lenses of ``benchmarks/bench_undistort.py``, not always far outside it, where
+        polynomial lens models fold back.
 
     Examples
     --------

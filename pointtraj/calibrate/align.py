@@ -240,10 +240,8 @@ def align_rig_to(
     Parameters
     ----------
     rig, reference : CameraRig
-    with_scale : bool
-        Estimate the scale (True for SfM output).
-    robust : bool
-        Leave outlier cameras out of the fit.
+    with_scale, robust : bool
+        As in :func:`estimate_rig_similarity`.
 
     Returns
     -------
