@@ -107,6 +107,11 @@ def fit_rigid(
     RigidFit
         ``scale`` (B,), ``rotation`` (B, 3, 3), ``translation`` (B, 3) and ``valid`` (B,).
 
+    Raises
+    ------
+    ValidationError
+        If ``src`` is not (B, N, 3), or ``dst`` or ``weights`` does not match it.
+
     References
     ----------
     W. Kabsch, "A solution for the best rotation to relate two sets of vectors", Acta Cryst.
@@ -123,9 +128,9 @@ def fit_rigid(
     >>> np.round(fit.translation[0], 6).tolist()
     [1.0, 2.0, 3.0]
     """
-    a = np.asarray(src, dtype=np.float64)
-    b = np.asarray(dst, dtype=np.float64)
-    w = None if weights is None else np.asarray(weights, np.float64)
+    a = check_array("src", src, (None, None, 3), dtype=np.float64)
+    b = check_array("dst", dst, a.shape, dtype=np.float64)
+    w = None if weights is None else check_array("weights", weights, a.shape[:2], dtype=np.float64)
     B = a.shape[0]
     mu_a = mu_b = np.zeros((B, 1, 3))
     if center:

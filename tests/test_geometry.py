@@ -113,6 +113,16 @@ def test_fit_rigid_flags_degenerate_sets():
     assert np.all(np.isfinite(fit.rotation)) and np.all(np.isfinite(fit.scale))
 
 
+def test_fit_rigid_rejects_bad_shapes():
+    a = np.zeros((2, 4, 3))
+    with pytest.raises(ValidationError, match=r"src: expected shape \(N, N, 3\)"):
+        fit_rigid(a[0], a[0])
+    with pytest.raises(ValidationError, match=r"dst: expected shape \(2, 4, 3\)"):
+        fit_rigid(a, a[:, :3])
+    with pytest.raises(ValidationError, match=r"weights: expected shape \(2, 4\)"):
+        fit_rigid(a, a, np.ones((2, 3)))
+
+
 # -- rotations -----------------------------------------------------------------------------------
 def test_rodrigues_round_trip_against_scipy_and_opencv():
     import cv2
