@@ -150,15 +150,18 @@ def fit_rigid(
     d[d == 0] = 1.0
     V[:, :, 2] *= d[:, None]
     R = V @ Ut  # (B, 3, 3) = V diag(1, 1, d) U^T
-    var_a = np.sum(aw * a, axis=(1, 2))  # (B,) Σ w |a|²
-    valid = (S[:, 1] > 1e-12 * np.maximum(S[:, 0], 1e-300)) & (var_a > 0)
+    # Rank below 2 (collinear or coincident points: all-zero source sets included).
+    valid = S[:, 1] > 1e-12 * np.maximum(S[:, 0], 1e-300)
     if with_scale:
         # Umeyama's eq. (42): s = tr(S D) / σ²_src (the 1/n of both cancels).
+        var_a = np.einsum("bni,bni->b", aw, a)  # (B,) Σ w |a|²
         S[:, 2] *= d
         s = S.sum(axis=1) / np.where(var_a > 0, var_a, 1.0)
     else:
         s = np.ones(B)
-    t = mu_b[:, 0] - s[:, None] * np.einsum("bij,bj->bi", R, mu_a[:, 0])  # (B, 3)
+    t = np.zeros((B, 3))
+    if center:
+        t = mu_b[:, 0] - s[:, None] * np.einsum("bij,bj->bi", R, mu_a[:, 0])  # (B, 3)
     return RigidFit(s, R, t, valid)
 
 
