@@ -62,12 +62,10 @@ def actor_mask(gt, traj, frames: range, radius: float) -> np.ndarray:
 
 def kabsch_batch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rigid (R, t) mapping ``src`` (B, k, 3) onto ``dst`` (B, k, 3), batched."""
-    from pointtraj.affinity import kabsch_rotation
+    from pointtraj.geometry import fit_rigid
 
-    ms, md = src.mean(axis=1, keepdims=True), dst.mean(axis=1, keepdims=True)
-    R = kabsch_rotation(src - ms, dst - md)  # (B, 3, 3)
-    t = md[:, 0] - np.einsum("bij,bj->bi", R, ms[:, 0])
-    return R, t
+    fit = fit_rigid(src, dst)
+    return fit.rotation, fit.translation
 
 
 def drift(gt, traj, radius: float, k: int = 8) -> np.ndarray:

@@ -50,6 +50,7 @@ import numpy as np
 
 from .atomic import save_npz_atomic
 from .errors import FileFormatError, ValidationError, check_array
+from .geometry import fit_rigid
 from .trajectories import Trajectories
 
 __all__ = [
@@ -65,7 +66,6 @@ __all__ = [
     "filter_neighbors",
     "fit_local_rigid",
     "local_transforms",
-    "kabsch_rotation",
     "pair_errors",
     "symmetric_affinity",
     "save_affinity",
@@ -517,43 +517,6 @@ def filter_neighbors(
 
 
 # -- local rigid transforms --------------------------------------------------------------------
-def kabsch_rotation(a: np.ndarray, b: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-    """Batched proper rotations R minimising ``Σ_k w_k ‖b_k - R a_k‖²`` (no centring).
-
-    Parameters
-    ----------
-    a, b : (B, N, 3) float ndarray
-        Source and target vectors (here displacements relative to the anchor trajectory).
-    weights : (B, N) float ndarray, optional
-        Per-vector weights (0 excludes a vector).
-
-    Returns
-    -------
-    (B, 3, 3) float64 ndarray
-        Rotations with ``det = +1`` (the sign fix of Kabsch/Umeyama).
-
-    Examples
-    --------
-    >>> a = np.eye(3)[None]
-    >>> R = kabsch_rotation(a, a @ np.array([[0., -1, 0], [1, 0, 0], [0, 0, 1]]).T)
-    >>> np.round(R[0], 6) + 0.0
-    array([[ 0., -1.,  0.],
-           [ 1.,  0.,  0.],
-           [ 0.,  0.,  1.]])
-    """
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    aw = a if weights is None else a * np.asarray(weights, np.float64)[..., None]
-    H = np.swapaxes(aw, 1, 2) @ b  # (B, 3, 3) = Σ w a b^T
-    U, _, Vt = np.linalg.svd(H)
-    V = np.swapaxes(Vt, 1, 2)
-    Ut = np.swapaxes(U, 1, 2)
-    d = np.sign(np.linalg.det(V @ Ut))  # -1 where the best orthogonal map is a reflection
-    d[d == 0] = 1.0
-    V[:, :, 2] *= d[:, None]
-    return V @ Ut  # V diag(1, 1, d) U^T
-
-
 def _sqnorm(v: np.ndarray) -> np.ndarray:
     """Squared norm over the last axis of length 3 (faster than a strided sum)."""
     return v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2]
@@ -646,7 +609,7 @@ def fit_local_rigid(
         w = inlier[np.arange(r.size), best]  # (B, S)
         ninl = w.sum(axis=1)
         ok &= ninl >= cfg.min_inliers
-        R = kabsch_rotation(a, b, w)
+        R = fit_rigid(a, b, w, center=False).rotation  # (B, 3, 3) Kabsch on the inliers
         # inlier count under the refined rotation
         res2 = b - a @ np.swapaxes(R, 1, 2).astype(np.float32)
         n2 = ((_sqnorm(res2) < thr2) & valid).sum(axis=1)

@@ -6,7 +6,9 @@ coordinates follow OpenCV: the origin is the centre of the top-left pixel, x rig
 image covers ``[-0.5, w - 0.5) x [-0.5, h - 0.5)``. Distortion is OpenCV's rational model
 ``(k1, k2, p1, p2, k3, k4, k5, k6)``; shorter vectors (4 or 5 coefficients) are zero-padded.
 
-All projection routines are vectorised over points and, in :class:`CameraRig`, over cameras.
+All projection routines are vectorised over points and, in :class:`CameraRig`, over cameras. The
+lens model (:func:`distort_normalized`, :func:`undistort_normalized`) and the Rodrigues conversions
+live in :mod:`pointtraj.geometry` and are re-exported here.
 """
 
 from __future__ import annotations
@@ -18,6 +20,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ValidationError, check_array
+from .geometry import (
+    N_DIST,
+    distort_normalized,
+    rodrigues_from_rotation,
+    rotation_from_rodrigues,
+    undistort_normalized,
+)
 
 __all__ = [
     "Camera",
@@ -31,8 +40,6 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: Number of distortion coefficients stored (OpenCV's rational model).
-N_DIST = 8
 _ALLOWED_DIST_LENGTHS = (0, 4, 5, 8)
 #: Tolerance on ``R^T R = I`` and ``det R = 1`` when validating rotations.
 ROTATION_TOL = 1e-5
@@ -50,116 +57,6 @@ def _pad_dist(name: str, dist: object) -> np.ndarray:
     out = np.zeros(N_DIST)
     out[: d.size] = d
     return out
-
-
-def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Apply OpenCV lens distortion to normalised image coordinates.
-
-    Parameters
-    ----------
-    xy : (..., N, 2) float ndarray
-        Undistorted normalised coordinates ``(X/Z, Y/Z)``.
-    dist : (..., 8) float ndarray
-        ``(k1, k2, p1, p2, k3, k4, k5, k6)``, broadcast against the leading axes of ``xy``
-        (one row per camera for ``xy`` of shape (C, N, 2)).
-
-    Returns
-    -------
-    (..., N, 2) float ndarray
-        Distorted normalised coordinates.
-    """
-    d = np.asarray(dist, dtype=float)[..., None, :]  # (..., 1, 8)
-    k1, k2, p1, p2, k3, k4, k5, k6 = (d[..., i] for i in range(N_DIST))
-    x, y = xy[..., 0], xy[..., 1]
-    r2 = x * x + y * y
-    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.stack([xd, yd], axis=-1)
-
-
-def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray, iterations: int = 30) -> np.ndarray:
-    """Invert :func:`distort_normalized` by fixed-point iteration refined with Newton steps.
-
-    Parameters
-    ----------
-    xy_d : (..., N, 2) float ndarray
-        Distorted normalised coordinates.
-    dist : (..., 8) float ndarray
-        Distortion coefficients, broadcast as in :func:`distort_normalized`.
-    iterations : int
-        Fixed-point iterations before the Newton refinement.
-
-    Returns
-    -------
-    (..., N, 2) float ndarray
-        Undistorted normalised coordinates; round trips to ``xy_d`` to about 1e-10 inside the
-        lens's monotonic range.
-    """
-    xy_d = np.asarray(xy_d, dtype=float)
-    d = np.asarray(dist, dtype=float)
-    if not np.any(d):
-        return xy_d.copy()
-    xy = xy_d.copy()
-    dd = d[..., None, :]
-    k1, k2, p1, p2, k3, k4, k5, k6 = (dd[..., i] for i in range(N_DIST))
-    for _ in range(iterations):  # OpenCV's fixed-point scheme
-        x, y = xy[..., 0], xy[..., 1]
-        r2 = x * x + y * y
-        icdist = (1 + r2 * (k4 + r2 * (k5 + r2 * k6))) / (1 + r2 * (k1 + r2 * (k2 + r2 * k3)))
-        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        xy = np.stack([(xy_d[..., 0] - dx) * icdist, (xy_d[..., 1] - dy) * icdist], axis=-1)
-    h = 1e-7
-    for _ in range(3):  # Newton with a finite-difference Jacobian, vectorised 2x2 solves
-        f = distort_normalized(xy, d) - xy_d  # (..., N, 2)
-        jx = (distort_normalized(xy + [h, 0.0], d) - xy_d - f) / h
-        jy = (distort_normalized(xy + [0.0, h], d) - xy_d - f) / h
-        a, b, c, e = jx[..., 0], jy[..., 0], jx[..., 1], jy[..., 1]
-        det = a * e - b * c
-        ok = np.abs(det) > 1e-12
-        det = np.where(ok, det, 1.0)
-        step_x = (e * f[..., 0] - b * f[..., 1]) / det
-        step_y = (-c * f[..., 0] + a * f[..., 1]) / det
-        xy = xy - np.where(ok[..., None], np.stack([step_x, step_y], axis=-1), 0.0)
-    return xy
-
-
-def rotation_from_rodrigues(rvec: object) -> np.ndarray:
-    """Rotation matrix from a Rodrigues (axis-angle) vector.
-
-    Parameters
-    ----------
-    rvec : (3,) array-like
-
-    Returns
-    -------
-    (3, 3) float ndarray
-    """
-    r = check_array("rvec", rvec, (3,), finite=True)
-    theta = float(np.linalg.norm(r))
-    if theta < 1e-12:
-        return np.eye(3)
-    k = r / theta
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * (kx @ kx)
-
-
-def rodrigues_from_rotation(R: object) -> np.ndarray:
-    """Rodrigues vector of a rotation matrix (inverse of :func:`rotation_from_rodrigues`).
-
-    Parameters
-    ----------
-    R : (3, 3) array-like
-        A rotation matrix.
-
-    Returns
-    -------
-    (3,) float ndarray
-    """
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(check_array("R", R, (3, 3), finite=True)).as_rotvec()
 
 
 @dataclass(frozen=True)

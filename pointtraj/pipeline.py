@@ -30,7 +30,7 @@ from .affinity import AffinityConfig
 from .errors import FileFormatError, ValidationError
 from .evaluate.study import EvaluateConfig
 from .reconstruct.track import ReconstructConfig
-from .render import RenderConfig
+from .render.config import RenderConfig
 from .stages import (
     LabelStageConfig,
     Progress,
@@ -423,7 +423,7 @@ def _evaluate(config: PipelineConfig, progress: Progress | None) -> None:
 
 
 def _render(work: Path, config: RenderConfig, progress: Progress | None) -> None:
-    from .render import render_work
+    from .render.stage import render_work
 
     render_work(work, config, progress=progress)
 

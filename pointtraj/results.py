@@ -78,7 +78,7 @@ class Result:
         """
         colors = None
         if color_by == "label" and self.class_colors is not None:
-            from .render import label_colors
+            from .render.palette import label_colors
 
             colors = label_colors(self.label, self.class_colors)
         return self.trajectories.to_pointcloud(int(frame), labels=self.label, colors=colors)

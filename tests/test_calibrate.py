@@ -13,7 +13,6 @@ from pointtraj.calibrate import (
     CalibrationError,
     CalibrationOptions,
     CharucoBoard,
-    _opencv_from_colmap,
     align_rig_to,
     align_rig_to_charuco,
     calibrate_charuco,
@@ -26,8 +25,10 @@ from pointtraj.calibrate import (
     transform_rig,
     umeyama,
 )
-from pointtraj.camera import Camera, CameraRig, rotation_from_rodrigues
+from pointtraj.calibrate.sfm import _opencv_from_colmap
+from pointtraj.camera import Camera, CameraRig
 from pointtraj.errors import FileFormatError, ValidationError
+from pointtraj.geometry import rotation_from_rodrigues
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 CALISCOPE = SHARED / "data" / "caliscope_board_4cam"
@@ -496,7 +497,8 @@ def test_retry_registers_a_dropped_camera_with_the_median_focal(ring8_capture, t
     continuing the mapping with the median focal length as its prior."""
     import pycolmap
 
-    from pointtraj.calibrate import _retry_registration, export_frames
+    from pointtraj.calibrate import export_frames
+    from pointtraj.calibrate.sfm import _retry_registration
     from pointtraj.session import Capture
 
     cap = Capture.open(ring8_capture)

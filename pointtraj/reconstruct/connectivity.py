@@ -22,6 +22,7 @@ import numpy as np
 from ..atomic import atomic_path, write_text_atomic
 from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError, check_array
+from ..geometry import axis_angles
 
 __all__ = [
     "ConnectivityGraph",
@@ -419,8 +420,7 @@ def build_connectivity(
         if np.any(box[1] < box[0]):
             raise ValidationError(f"volume: need [min_corner, max_corner], got {box.tolist()}")
     C = len(rig)
-    dirs = rig.R[:, 2]  # (C, 3)
-    angles = np.degrees(np.arccos(np.clip(dirs @ dirs.T, -1.0, 1.0)))  # (C, C)
+    angles = axis_angles(rig)  # (C, C)
     rng = np.random.default_rng(seed)
     pts = rng.uniform(box[0], box[1], size=(int(samples), 3))  # (S, 3)
     seen = rig.project(pts).in_image.astype(np.float64)  # (C, S)
@@ -442,7 +442,7 @@ def build_connectivity(
         angles_deg=angles[i, j][keep],
         overlap=overlap[i, j][keep],
         centers=rig.C.copy(),
-        directions=dirs.copy(),
+        directions=rig.R[:, 2].copy(),
     )
     logger.info("connectivity: %d of %d camera pairs kept", graph.num_edges, i.size)
     return graph

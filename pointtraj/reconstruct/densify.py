@@ -42,6 +42,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
+from ..geometry import axis_angles
 
 logger = logging.getLogger(__name__)
 
@@ -332,8 +333,6 @@ def densify(
         Observations (distorted pixels) of M new points, each in its reference camera and one
         or more partners (NaN elsewhere).
     """
-    from .track import axis_angles
-
     cfg = config or DensifyConfig()
     C = len(rig)
     if len(images) != C:

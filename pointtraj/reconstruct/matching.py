@@ -18,8 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import CameraRig, undistort_normalized
+from ..camera import CameraRig
 from ..errors import ValidationError, check_array
+from ..geometry import undistort_normalized
 
 __all__ = [
     "MatchingConfig",

@@ -28,6 +28,7 @@ import numpy as np
 from ..atomic import save_npz_atomic
 from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError, check_array
+from ..geometry import axis_angles
 from ..npzfile import load_npz
 from ..trajectories import Trajectories, frame_pointcloud, quantize_visibility, write_cloud_ply
 from .densify import DensifyConfig
@@ -426,12 +427,6 @@ def track_flow(
     p1, good = _flow_fb(prev_grey, grey, p[idx], lk, fb_max_px)
     out[idx[good]] = p1[good]
     return out
-
-
-def axis_angles(rig: CameraRig) -> np.ndarray:
-    """(C, C) angles between the cameras' optical axes, degrees."""
-    axes = np.stack([cam.viewing_direction for cam in rig])  # (C, 3)
-    return np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))
 
 
 def expand_views(

@@ -26,8 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import CameraRig, Projection, undistort_normalized
+from ..camera import CameraRig, Projection
 from ..errors import ValidationError, check_array
+from ..geometry import undistort_normalized
 
 __all__ = [
     "TriangulationConfig",
@@ -48,9 +49,6 @@ _MAX_ELEMENTS = 1 << 21
 _MAX_REFIT_ELEMENTS = 1 << 20
 #: Rigs with more than twice this many cameras pre-score hypotheses on this many random views.
 _PRESCORE_VIEWS = 16
-#: Fixed-point iterations of the undistortion before its Newton refinement, and Newton steps.
-_UNDISTORT_ITERATIONS = 3
-_NEWTON_STEPS = 3
 
 
 @dataclass(frozen=True)
@@ -199,82 +197,10 @@ def _normalized(
         seen = observed[dcam]  # (Cd, N)
         xd = np.where(seen, x[dcam], 0.0)
         yd = np.where(seen, y[dcam], 0.0)
-        xu, yu = _undistort(xd, yd, rig.dist[dcam])
-        x[dcam] = np.where(seen, xu, np.nan)
-        y[dcam] = np.where(seen, yu, np.nan)
+        xy = undistort_normalized(np.stack([xd, yd], axis=-1), rig.dist[dcam])  # (Cd, N, 2)
+        x[dcam] = np.where(seen, xy[..., 0], np.nan)
+        y[dcam] = np.where(seen, xy[..., 1], np.nan)
     return np.ascontiguousarray(x.T), np.ascontiguousarray(y.T)
-
-
-def _undistort(xd: np.ndarray, yd: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Invert OpenCV's distortion: fixed-point start, then Newton with the analytic Jacobian.
-
-    A faster equivalent of :func:`pointtraj.camera.undistort_normalized` (which uses a finite-
-    difference Jacobian); entries whose last Newton step is not negligible fall back to it.
-
-    Parameters
-    ----------
-    xd, yd : (Cd, N) float ndarrays
-        Distorted normalised coordinates.
-    dist : (Cd, 8) float ndarray
-        ``(k1, k2, p1, p2, k3, k4, k5, k6)`` per camera.
-
-    Returns
-    -------
-    x, y : (Cd, N) float ndarrays
-    """
-    k1, k2, p1, p2, k3, k4, k5, k6 = (dist[:, i, None] for i in range(8))  # (Cd, 1) each
-    rational = bool(np.any(dist[:, 5:8] != 0))  # skip terms that are zero for every camera
-    tangential = bool(np.any(dist[:, 2:4] != 0))
-    x, y = xd.copy(), yd.copy()
-    for _ in range(_UNDISTORT_ITERATIONS):  # OpenCV's fixed-point scheme, as a start
-        r2 = x * x + y * y
-        icdist = 1 / (1 + r2 * (k1 + r2 * (k2 + r2 * k3)))
-        if rational:
-            icdist *= 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-        if tangential:
-            x, y = (
-                (xd - 2 * p1 * x * y - p2 * (r2 + 2 * x * x)) * icdist,
-                (yd - p1 * (r2 + 2 * y * y) - 2 * p2 * x * y) * icdist,
-            )
-        else:
-            x, y = xd * icdist, yd * icdist
-    for _ in range(_NEWTON_STEPS):
-        xx, yy, xy = x * x, y * y, x * y
-        r2 = xx + yy
-        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dnum = k1 + r2 * (2 * k2 + 3 * k3 * r2)
-        if rational:
-            den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-            rad = num / den
-            drad = (dnum * den - num * (k4 + r2 * (2 * k5 + 3 * k6 * r2))) / (den * den)
-        else:
-            rad, drad = num, dnum  # d rad / d r2
-        fx = x * rad - xd
-        fy = y * rad - yd
-        a = rad + 2 * xx * drad  # Jacobian [[a, b], [b, e]]
-        b = 2 * xy * drad
-        e = rad + 2 * yy * drad
-        if tangential:
-            fx += 2 * p1 * xy + p2 * (r2 + 2 * xx)
-            fy += p1 * (r2 + 2 * yy) + 2 * p2 * xy
-            a += 2 * p1 * y + 6 * p2 * x
-            b += 2 * p1 * x + 2 * p2 * y
-            e += 6 * p1 * y + 2 * p2 * x
-        det = a * e - b * b
-        det = np.where(np.abs(det) > 1e-12, det, np.inf)  # no step where singular
-        sx = (e * fx - b * fy) / det
-        sy = (a * fy - b * fx) / det
-        x -= sx
-        y -= sy
-    # Newton converges quadratically: a last step below 1e-9 leaves an error near 1e-16.
-    slow = ~((np.abs(sx) < 1e-9) & (np.abs(sy) < 1e-9))
-    if np.any(slow):  # not converged (strong distortion far out): the reference routine
-        cam = np.nonzero(slow)[0]
-        xy_d = np.stack([xd[slow], yd[slow]], axis=-1)[:, None, :]  # (M, 1, 2)
-        ref = undistort_normalized(xy_d, dist[cam])[:, 0]
-        x[slow], y[slow] = ref[:, 0], ref[:, 1]
-        logger.debug("undistortion: %d entries needed the reference routine", int(slow.sum()))
-    return x, y
 
 
 def _dlt_blocks(Rt: np.ndarray) -> np.ndarray:

@@ -316,30 +316,6 @@ def test_ransac_outer_chunks_bound_memory(rng, monkeypatch):
     np.testing.assert_allclose(exact.points, X, atol=1e-9)
 
 
-@pytest.mark.parametrize(
-    "dist",
-    [
-        DIST,
-        [-0.3, 0.1, 0.001, -0.001, 0, 0, 0, 0],
-        [0.2, -0.05, 0.001, 0, 0.01, 0.1, 0.01, 0.001],  # rational and tangential
-        [-0.3, 0.1, 0, 0, 0, 0, 0, 0],  # radial only
-        [0.1, 0, 0, 0, 0, 0.1, 0, 0],  # rational, no tangential
-    ],
-)
-def test_fast_undistortion_agrees_with_camera_module(rng, dist):
-    """The analytic-Jacobian Newton undistortion equals pointtraj.camera's reference."""
-    from pointtraj.camera import distort_normalized, undistort_normalized
-    from pointtraj.reconstruct.triangulate import _undistort
-
-    d = np.array([dist], float)
-    xy = rng.uniform(-0.9, 0.9, size=(1, 5000, 2))
-    xy_d = distort_normalized(xy, d)
-    x, y = _undistort(xy_d[..., 0], xy_d[..., 1], d)
-    ref = undistort_normalized(xy_d, d)
-    np.testing.assert_allclose(np.stack([x, y], -1), ref, atol=1e-12)
-    np.testing.assert_allclose(np.stack([x, y], -1), xy, atol=1e-12)
-
-
 def test_ransac_hypothesis_budget_is_respected(rng, monkeypatch):
     """At most ``iterations`` hypotheses per point, also when ``batch`` does not divide it."""
     import pointtraj.reconstruct.triangulate as tri

@@ -1,0 +1,399 @@
+"""Shared geometry, one routine each: rigid fits, rotations, camera axis angles, lens distortion.
+
+Everything here works on numpy arrays and sits at the bottom of the import graph (it imports
+only :mod:`pointtraj.errors`, numpy and, lazily, scipy), so that :mod:`pointtraj.camera`, the
+reconstruction, the affinity and the calibration all use the same implementation:
+
+- :func:`fit_rigid`: batched Kabsch/Umeyama, ``dst ≈ s R src + t`` with optional weights, scale
+  and centring (the local rigid transforms of the affinity, the similarity between rigs);
+- :func:`rotation_from_rodrigues`, :func:`rodrigues_from_rotation`: axis-angle vectors, both
+  through ``scipy.spatial.transform.Rotation``;
+- :func:`mean_rotation`, :func:`rotation_angle_deg`: chordal mean of rotations and the angle
+  between rotations;
+- :func:`axis_angles`: angles between the optical axes of a rig's cameras;
+- :func:`distort_normalized`, :func:`undistort_normalized`: OpenCV's lens model
+  ``(k1, k2, p1, p2, k3, k4, k5, k6)`` and its inverse (``benchmarks/bench_undistort.py``
+  compares the inverse with ``cv2.undistortPoints``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+
+from .errors import check_array
+
+if TYPE_CHECKING:
+    from .camera import CameraRig
+
+__all__ = [
+    "N_DIST",
+    "RigidFit",
+    "fit_rigid",
+    "rotation_from_rodrigues",
+    "rodrigues_from_rotation",
+    "mean_rotation",
+    "rotation_angle_deg",
+    "axis_angles",
+    "distort_normalized",
+    "undistort_normalized",
+]
+
+#: Number of distortion coefficients (OpenCV's rational model ``k1 k2 p1 p2 k3 k4 k5 k6``).
+N_DIST = 8
+
+#: Undistortion: fixed-point steps before the Newton refinement, Newton steps, and the larger
+#: number of fixed-point steps for entries where the first pass did not converge.
+_UNDISTORT_FIXED_POINT = 3
+_UNDISTORT_NEWTON = 3
+_UNDISTORT_FIXED_POINT_SLOW = 30
+#: A last Newton step below this (normalised units) counts as converged: Newton converges
+#: quadratically, so the error left is near 1e-16.
+_UNDISTORT_CONVERGED = 1e-9
+
+
+# -- rigid fits ----------------------------------------------------------------------------------
+class RigidFit(NamedTuple):
+    """Batched similarities ``dst ≈ s R src + t`` from :func:`fit_rigid`.
+
+    Attributes
+    ----------
+    scale : (B,) float64 ndarray
+        ``s`` (1 without ``with_scale``).
+    rotation : (B, 3, 3) float64 ndarray
+        Proper rotations (``det R = +1``).
+    translation : (B, 3) float64 ndarray
+        ``t`` (0 without ``center``).
+    valid : (B,) bool ndarray
+        False where the fit is degenerate: the source points are coincident, or the
+        cross-covariance has rank below 2 (collinear points), so the rotation is not unique.
+    """
+
+    scale: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    valid: np.ndarray
+
+
+def fit_rigid(
+    src: np.ndarray,
+    dst: np.ndarray,
+    weights: np.ndarray | None = None,
+    *,
+    with_scale: bool = False,
+    center: bool = True,
+) -> RigidFit:
+    """Least-squares rigid or similarity transforms of B point sets at once (Kabsch/Umeyama).
+
+    Minimises ``Σ_k w_k ‖dst_k - (s R src_k + t)‖²`` per set, with R a proper rotation (the
+    determinant sign fix of Kabsch and Umeyama). With ``center`` the sets are centred on their
+    (weighted) means and t is fitted; without it ``t = 0``: the rotation best aligning the
+    vectors as given (for displacements relative to an anchor point).
+
+    Parameters
+    ----------
+    src, dst : (B, N, 3) float ndarray
+        Corresponding points (or vectors), B sets of N.
+    weights : (B, N) float ndarray, optional
+        Non-negative weight per pair; 0 leaves a pair out.
+    with_scale : bool
+        Also fit the scale s (Umeyama's similarity); otherwise ``s = 1``.
+    center : bool
+        Centre the sets and fit the translation t.
+
+    Returns
+    -------
+    RigidFit
+        ``scale`` (B,), ``rotation`` (B, 3, 3), ``translation`` (B, 3) and ``valid`` (B,).
+
+    Raises
+    ------
+    ValidationError
+        If ``src`` is not (B, N, 3), or ``dst`` or ``weights`` does not match it.
+
+    References
+    ----------
+    W. Kabsch, "A solution for the best rotation to relate two sets of vectors", Acta Cryst.
+    A32 (1976). S. Umeyama, "Least-squares estimation of transformation parameters between two
+    point patterns", IEEE TPAMI 13(4) (1991), eqs. (40)-(42).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> a = rng.normal(size=(1, 10, 3))
+    >>> fit = fit_rigid(a, 2.0 * a + [1.0, 2.0, 3.0], with_scale=True)
+    >>> round(float(fit.scale[0]), 6), bool(np.allclose(fit.rotation[0], np.eye(3)))
+    (2.0, True)
+    >>> np.round(fit.translation[0], 6).tolist()
+    [1.0, 2.0, 3.0]
+    """
+    a = check_array("src", src, (None, None, 3), dtype=np.float64)
+    b = check_array("dst", dst, a.shape, dtype=np.float64)
+    w = None if weights is None else check_array("weights", weights, a.shape[:2], dtype=np.float64)
+    B = a.shape[0]
+    mu_a = mu_b = np.zeros((B, 1, 3))
+    if center:
+        if w is None:
+            mu_a, mu_b = a.mean(axis=1, keepdims=True), b.mean(axis=1, keepdims=True)  # (B, 1, 3)
+        else:
+            wsum = np.maximum(w.sum(axis=1), 1e-300)[:, None, None]  # (B, 1, 1)
+            mu_a = (a * w[..., None]).sum(axis=1, keepdims=True) / wsum
+            mu_b = (b * w[..., None]).sum(axis=1, keepdims=True) / wsum
+        a, b = a - mu_a, b - mu_b
+    aw = a if w is None else a * w[..., None]
+    H = np.swapaxes(aw, 1, 2) @ b  # (B, 3, 3) = Σ w a b^T
+    U, S, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, 1, 2)
+    Ut = np.swapaxes(U, 1, 2)
+    d = np.sign(np.linalg.det(V @ Ut))  # -1 where the best orthogonal map is a reflection
+    d[d == 0] = 1.0
+    V[:, :, 2] *= d[:, None]
+    R = V @ Ut  # (B, 3, 3) = V diag(1, 1, d) U^T
+    # Rank below 2 (collinear or coincident points: all-zero source sets included).
+    valid = S[:, 1] > 1e-12 * np.maximum(S[:, 0], 1e-300)
+    if with_scale:
+        # Umeyama's eq. (42): s = tr(S D) / σ²_src (the 1/n of both cancels).
+        var_a = np.einsum("bni,bni->b", aw, a)  # (B,) Σ w |a|²
+        S[:, 2] *= d
+        s = S.sum(axis=1) / np.where(var_a > 0, var_a, 1.0)
+    else:
+        s = np.ones(B)
+    t = np.zeros((B, 3))
+    if center:
+        t = mu_b[:, 0] - s[:, None] * np.einsum("bij,bj->bi", R, mu_a[:, 0])  # (B, 3)
+    return RigidFit(s, R, t, valid)
+
+
+# -- rotations -----------------------------------------------------------------------------------
+def rotation_from_rodrigues(rvec: object) -> np.ndarray:
+    """Rotation matrix from a Rodrigues (axis-angle) vector.
+
+    Parameters
+    ----------
+    rvec : (3,) array-like
+        Axis times angle in radians.
+
+    Returns
+    -------
+    (3, 3) float ndarray
+
+    Examples
+    --------
+    >>> np.round(rotation_from_rodrigues([0, 0, np.pi / 2]), 6) + 0.0
+    array([[ 0., -1.,  0.],
+           [ 1.,  0.,  0.],
+           [ 0.,  0.,  1.]])
+    """
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(check_array("rvec", rvec, (3,), finite=True)).as_matrix()
+
+
+def rodrigues_from_rotation(R: object) -> np.ndarray:
+    """Rodrigues vector of a rotation matrix (inverse of :func:`rotation_from_rodrigues`).
+
+    Parameters
+    ----------
+    R : (3, 3) array-like
+        A rotation matrix.
+
+    Returns
+    -------
+    (3,) float ndarray
+        Axis times angle, the angle in [0, pi].
+    """
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(check_array("R", R, (3, 3), finite=True)).as_rotvec()
+
+
+def mean_rotation(Rs: np.ndarray) -> np.ndarray:
+    """Chordal L2 mean of rotations: the rotation nearest their sum in Frobenius norm.
+
+    Parameters
+    ----------
+    Rs : (N, 3, 3) float ndarray
+
+    Returns
+    -------
+    (3, 3) float ndarray
+    """
+    U, _, Vt = np.linalg.svd(Rs.sum(axis=0))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
+    """Angles in degrees of ``Ra^T Rb`` for stacked rotations.
+
+    Parameters
+    ----------
+    Ra, Rb : (..., 3, 3) float ndarray
+        Broadcast against each other.
+
+    Returns
+    -------
+    (...) float ndarray
+    """
+    tr = np.einsum("...ij,...ij->...", Ra, Rb)  # trace(Ra^T Rb)
+    return np.degrees(np.arccos(np.clip((tr - 1) / 2, -1.0, 1.0)))
+
+
+def axis_angles(rig: CameraRig) -> np.ndarray:
+    """Angles between the cameras' optical axes.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras (``rig.R`` (C, 3, 3), world to camera).
+
+    Returns
+    -------
+    (C, C) float ndarray
+        Degrees, in [0, 180]; 0 on the diagonal.
+    """
+    axes = rig.R[:, 2]  # (C, 3) third rows: the optical axes in world coordinates
+    return np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))
+
+
+# -- lens distortion -----------------------------------------------------------------------------
+def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Apply OpenCV lens distortion to normalised image coordinates.
+
+    Parameters
+    ----------
+    xy : (..., N, 2) float ndarray
+        Undistorted normalised coordinates ``(X/Z, Y/Z)``.
+    dist : (..., 8) float ndarray
+        ``(k1, k2, p1, p2, k3, k4, k5, k6)``, broadcast against the leading axes of ``xy``
+        (one row per camera for ``xy`` of shape (C, N, 2)).
+
+    Returns
+    -------
+    (..., N, 2) float ndarray
+        Distorted normalised coordinates.
+    """
+    d = np.asarray(dist, dtype=float)[..., None, :]  # (..., 1, 8)
+    k1, k2, p1, p2, k3, k4, k5, k6 = (d[..., i] for i in range(N_DIST))
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([xd, yd], axis=-1)
+
+
+def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Invert :func:`distort_normalized`: fixed-point start, then Newton's method.
+
+    Three steps of OpenCV's fixed-point scheme give the start; three Newton steps with the
+    analytic Jacobian of the distortion refine it. Entries whose last Newton step is still above
+    1e-9 (strong distortion far from the image centre) are solved again from 30 fixed-point
+    steps. Vectorised over cameras and points.
+
+    Parameters
+    ----------
+    xy_d : (..., N, 2) float ndarray
+        Distorted normalised coordinates; NaN rows stay NaN.
+    dist : (..., 8) float ndarray
+        Distortion coefficients, broadcast as in :func:`distort_normalized`.
+
+    Returns
+    -------
+    (..., N, 2) float ndarray
+        Undistorted normalised coordinates; ``distort_normalized`` of them returns ``xy_d`` to
+        about 1e-15 wherever the iteration reaches the solution: everywhere inside the image for
+        the lenses of ``benchmarks/bench_undistort.py``, not always far outside it, where
+        polynomial lens models fold back.
+
+    Examples
+    --------
+    >>> xy = np.array([[0.3, -0.2]])
+    >>> d = [-0.3, 0.1, 0.001, -0.002, 0, 0, 0, 0]
+    >>> bool(np.allclose(undistort_normalized(distort_normalized(xy, d), d), xy, atol=1e-12))
+    True
+    """
+    xy_d = np.asarray(xy_d, dtype=float)
+    d = np.asarray(dist, dtype=float)
+    if not np.any(d):
+        return xy_d.copy()
+    coef = [d[..., None, i] for i in range(N_DIST)]  # each (..., 1)
+    xd, yd = xy_d[..., 0], xy_d[..., 1]
+    x, y, sx, sy = _undistort_steps(xd, yd, coef, _UNDISTORT_FIXED_POINT)
+    slow = ~((np.abs(sx) < _UNDISTORT_CONVERGED) & (np.abs(sy) < _UNDISTORT_CONVERGED))
+    slow &= np.isfinite(xd) & np.isfinite(yd)
+    if np.any(slow):  # not converged: start again from more fixed-point steps
+        coef_slow = [np.broadcast_to(k, slow.shape)[slow] for k in coef]  # each (M,)
+        x[slow], y[slow], _, _ = _undistort_steps(
+            xd[slow], yd[slow], coef_slow, _UNDISTORT_FIXED_POINT_SLOW
+        )
+    return np.stack([x, y], axis=-1)
+
+
+def _undistort_steps(
+    xd: np.ndarray, yd: np.ndarray, coef: list[np.ndarray], fixed_point: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``fixed_point`` fixed-point steps, then Newton steps with the analytic Jacobian.
+
+    Parameters
+    ----------
+    xd, yd : (..., N) float ndarrays
+        Distorted normalised coordinates.
+    coef : list of 8 float ndarrays
+        ``k1 k2 p1 p2 k3 k4 k5 k6``, each broadcastable against ``xd``.
+    fixed_point : int
+
+    Returns
+    -------
+    x, y : (..., N) float ndarrays
+        Undistorted coordinates.
+    sx, sy : (..., N) float ndarrays
+        The last Newton step (its size tells convergence).
+    """
+    k1, k2, p1, p2, k3, k4, k5, k6 = coef
+    rational = bool(np.any(k4 != 0) or np.any(k5 != 0) or np.any(k6 != 0))
+    tangential = bool(np.any(p1 != 0) or np.any(p2 != 0))  # skip the terms that are all zero
+    x, y = xd.copy(), yd.copy()
+    for _ in range(fixed_point):  # OpenCV's fixed-point scheme
+        r2 = x * x + y * y
+        icdist = 1 / (1 + r2 * (k1 + r2 * (k2 + r2 * k3)))
+        if rational:
+            icdist *= 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        if tangential:
+            x, y = (
+                (xd - 2 * p1 * x * y - p2 * (r2 + 2 * x * x)) * icdist,
+                (yd - p1 * (r2 + 2 * y * y) - 2 * p2 * x * y) * icdist,
+            )
+        else:
+            x, y = xd * icdist, yd * icdist
+    sx = sy = np.zeros_like(x)
+    for _ in range(_UNDISTORT_NEWTON):
+        xx, yy, xy = x * x, y * y, x * y
+        r2 = xx + yy
+        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dnum = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+        if rational:
+            den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+            rad = num / den
+            drad = (dnum * den - num * (k4 + r2 * (2 * k5 + 3 * k6 * r2))) / (den * den)
+        else:
+            rad, drad = num, dnum  # d rad / d r2
+        fx = x * rad - xd
+        fy = y * rad - yd
+        a = rad + 2 * xx * drad  # Jacobian [[a, b], [b, e]]
+        b = 2 * xy * drad
+        e = rad + 2 * yy * drad
+        if tangential:
+            fx += 2 * p1 * xy + p2 * (r2 + 2 * xx)
+            fy += p1 * (r2 + 2 * yy) + 2 * p2 * xy
+            a += 2 * p1 * y + 6 * p2 * x
+            b += 2 * p1 * x + 2 * p2 * y
+            e += 6 * p1 * y + 2 * p2 * x
+        det = a * e - b * b
+        det = np.where(np.abs(det) > 1e-12, det, np.inf)  # no step where singular
+        sx = (e * fx - b * fy) / det
+        sy = (a * fy - b * fx) / det
+        x = x - sx
+        y = y - sy
+    return x, y, sx, sy
