@@ -102,7 +102,7 @@ def predict_rigid(
     """
     from scipy.spatial import cKDTree
 
-    from ..affinity import kabsch_rotation
+    from ..geometry import fit_rigid
 
     cfg = config or SurviveConfig()
     P = check_array("before", before, (None, 3))
@@ -123,13 +123,12 @@ def predict_rigid(
         return out, ok
     w, idx, count, Xo = w[ok], idx[ok], count[ok], X[ok]
     a, b = P[idx], Q[idx]  # (m, k, 3)
-    ca = (w[..., None] * a).sum(axis=1) / count[:, None]
-    cb = (w[..., None] * b).sum(axis=1) / count[:, None]
-    R = kabsch_rotation(a - ca[:, None], b - cb[:, None], w)  # (m, 3, 3)
-    fitted = np.einsum("mij,mkj->mki", R, a - ca[:, None]) + cb[:, None]
+    fit = fit_rigid(a, b, w)
+    R, t = fit.rotation, fit.translation  # (m, 3, 3), (m, 3)
+    fitted = np.einsum("mij,mkj->mki", R, a) + t[:, None]
     rms = np.sqrt((w * ((fitted - b) ** 2).sum(axis=2)).sum(axis=1) / count)
-    pred = np.einsum("mij,mj->mi", R, Xo - ca) + cb
-    good = rms <= cfg.max_fit_m
+    pred = np.einsum("mij,mj->mi", R, Xo) + t
+    good = fit.valid & (rms <= cfg.max_fit_m)
     sel = np.flatnonzero(ok)
     out[sel[good]] = pred[good]
     ok[sel[~good]] = False
