@@ -15,20 +15,26 @@ views drop to one goes on for at most ``frames`` frames when two things agree:
 The point is then placed on that view's ray, nearest the prediction, and keeps that one view.
 Its other cameras stay searched by view discovery every frame; once a second view returns, the
 RANSAC re-triangulation takes over again. A point that keeps fewer than two views for more
-than ``frames`` frames, or whose view and neighbours disagree, ends.
+than ``frames`` frames, or whose view and neighbours disagree, ends; the one-view rows at the
+end of a trajectory are then dropped (:func:`trim_one_view_tails`): only those that bridge to
+triangulated rows stay.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
 
-__all__ = ["SurviveConfig", "predict_rigid", "carry_one_view"]
+if TYPE_CHECKING:
+    from ..trajectories import Trajectories
+
+__all__ = ["SurviveConfig", "predict_rigid", "carry_one_view", "trim_one_view_tails"]
 
 logger = logging.getLogger(__name__)
 
@@ -193,3 +199,61 @@ def _rays_world(rig: CameraRig, c: int, pixels: np.ndarray) -> tuple[np.ndarray,
     x = (ideal[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
     d = np.stack([x, y, np.ones_like(x)], axis=1) @ cam.R  # camera to world: R^T d
     return cam.C, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def trim_one_view_tails(
+    trajectories: Trajectories, visibility_threshold: float = 0.05, min_views: int = 2
+) -> tuple[Trajectories, int]:
+    """Drop the rows at the end of each trajectory that have fewer than ``min_views`` views.
+
+    A trajectory carried on one view that never regained a second one ends with rows whose
+    position only its neighbours' motion supports; they are kept only where they bridge to
+    triangulated rows.
+
+    Parameters
+    ----------
+    trajectories : Trajectories
+    visibility_threshold : float
+        A view counts where the visibility exceeds this.
+    min_views : int
+
+    Returns
+    -------
+    trajectories : Trajectories
+        The same store when nothing is dropped; otherwise a new one with the same trajectory
+        indices.
+    dropped : int
+        Rows dropped.
+    """
+    from ..trajectories import Trajectories, dequantize_visibility
+
+    views = np.count_nonzero(
+        dequantize_visibility(trajectories.visibility) > visibility_threshold, axis=1
+    )
+    good = views >= min_views  # (P,)
+    offsets = trajectories.offsets
+    M = trajectories.num_trajectories
+    if M == 0 or good.all():
+        return trajectories, 0
+    # the last good row of each trajectory: the max good row index within [offsets[m], offsets[m+1])
+    track = trajectories.row_track
+    last = np.full(M, -1, np.int64)
+    rows = np.flatnonzero(good)
+    np.maximum.at(last, track[rows], rows)
+    last = np.where(last >= 0, last, offsets[:-1])  # a trajectory without one keeps its first row
+    lengths = last - offsets[:-1] + 1
+    if np.array_equal(lengths, trajectories.lengths):
+        return trajectories, 0
+    keep = np.arange(len(track)) <= last[track]
+    out = Trajectories(
+        first_frame=trajectories.first_frame,
+        offsets=np.concatenate([[0], np.cumsum(lengths)]),
+        xyz=trajectories.xyz[keep],
+        visibility=trajectories.visibility[keep],
+        reprojection_error=trajectories.reprojection_error[keep],
+        color=trajectories.color[keep],
+        camera_names=list(trajectories.camera_names),
+        fps=trajectories.fps,
+        num_frames=trajectories.num_frames,
+    )
+    return out, int((~keep).sum())

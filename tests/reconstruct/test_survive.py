@@ -152,3 +152,28 @@ def test_survive_config_from_toml_and_validation():
         SurviveConfig(min_neighbors=2)
     with pytest.raises(ValidationError, match="occlusion_sigmas"):
         ReconstructConfig(occlusion_sigmas=-1.0)
+
+
+def test_one_view_tails_are_trimmed_and_bridges_kept():
+    from pointtraj.reconstruct.survive import trim_one_view_tails
+    from pointtraj.trajectories import Trajectories
+
+    T, C = 6, 3
+    xyz = np.zeros((3, T, 3))
+    vis = np.zeros((3, T, C))
+    vis[:, :, :2] = 1.0  # two views everywhere
+    vis[0, 4:, 1] = 0.0  # trajectory 0: one view in its last two frames -> trimmed to 4
+    vis[1, 2, 1] = 0.0  # trajectory 1: one view at frame 2, two again after -> kept whole
+    xyz[2, :2] = np.nan  # trajectory 2 starts at frame 2 ...
+    vis[2, 5, :] = 0.0  # ... and has no view in its last frame -> trimmed to 3
+    traj = Trajectories.from_dense(xyz, vis, camera_names=["a", "b", "c"])
+    out, dropped = trim_one_view_tails(traj)
+    assert dropped == 3
+    assert out.lengths.tolist() == [4, 6, 3]
+    assert out.first_frame.tolist() == traj.first_frame.tolist()
+    np.testing.assert_array_equal(
+        out.visibility[out.rows_of(np.array([1]))], traj.visibility[traj.rows_of(np.array([1]))]
+    )
+    # nothing to trim: the same store
+    same, none = trim_one_view_tails(out)
+    assert same is out and none == 0
