@@ -37,8 +37,9 @@ SETTINGS = {
 def run(capture: Path, frame: int, setting: dict) -> dict:
     """One setting: reconstruct ``frame`` from scratch and measure it."""
     from pointtraj.evaluate.groundtruth import frame_surface_errors
+    from pointtraj.reconstruct.config import ReconstructConfig
     from pointtraj.reconstruct.matching import MatchingConfig
-    from pointtraj.reconstruct.track import ReconstructConfig, Tracker
+    from pointtraj.reconstruct.track import Tracker
     from pointtraj.session import Capture
 
     cap = Capture.open(capture)

@@ -70,7 +70,7 @@ def ground_truth_seeds(capture: Path, rig, frame: int, fraction: float):
     grey : list of C (H, W) uint8 ndarrays
         The frame's grey images.
     """
-    from pointtraj.reconstruct.track import _to_grey
+    from pointtraj.reconstruct.flow import to_grey
     from pointtraj.session import Capture
     from pointtraj.synth.groundtruth import load_ground_truth
 
@@ -83,7 +83,7 @@ def ground_truth_seeds(capture: Path, rig, frame: int, fraction: float):
     X = gt.xyz[pick, frame].astype(np.float64)
     pix = rig.project(X).pixels
     pix[~visible[pick].T] = np.nan
-    return X, pix, [_to_grey(cap.read(n, frame)) for n in rig.names]
+    return X, pix, [to_grey(cap.read(n, frame)) for n in rig.names]
 
 
 def from_seeds(capture: Path, rig, frame: int, fraction: float, setting: dict) -> dict:

@@ -29,13 +29,10 @@ import numpy as np
 
 def track_from(capture, work: Path, start: int, frames: int, expand: bool) -> dict:
     """Track the live points of ``start`` for ``frames`` frames; figures and the last frame."""
-    from pointtraj.reconstruct.track import (
-        ReconstructConfig,
-        Tracker,
-        TrackState,
-        _load_state,
-        _to_grey,
-    )
+    from pointtraj.reconstruct.config import ReconstructConfig
+    from pointtraj.reconstruct.flow import to_grey
+    from pointtraj.reconstruct.stage import _load_state
+    from pointtraj.reconstruct.track import Tracker, TrackState
 
     rig = capture.rig
     _, st = _load_state(work / "state" / f"{start:06d}.npz", len(rig))
@@ -46,7 +43,7 @@ def track_from(capture, work: Path, start: int, frames: int, expand: bool) -> di
     out = {"expand_views": expand, "frames": []}
     t0 = time.perf_counter()
     if expand:  # expand the starting frame too, as the tracker does after every frame
-        grey = [_to_grey(im) for im in images]
+        grey = [to_grey(im) for im in images]
         xyz, vis, _, pix = tracker._expand(
             grey, st.xyz, st.visibility, np.zeros(len(st)), st.pixels.astype(np.float64)
         )

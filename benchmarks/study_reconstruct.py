@@ -311,7 +311,7 @@ def main() -> None:
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
-    from pointtraj.reconstruct.track import reconstruct_capture
+    from pointtraj.reconstruct.stage import reconstruct_capture
     from pointtraj.session import Capture
     from pointtraj.stages import load_reconstruct_config
     from pointtraj.workdir import parse_frames

@@ -48,7 +48,8 @@ def occlusion_audit(capture: Path, traj, frames: range, radius: float, depth_tol
     import numpy as np
 
     from pointtraj.evaluate.views import OcclusionAudit, false_occlusion_rate, frame_truth
-    from pointtraj.reconstruct.track import ReconstructConfig, occlusion_tolerance
+    from pointtraj.reconstruct.config import ReconstructConfig
+    from pointtraj.reconstruct.track import occlusion_tolerance
     from pointtraj.reconstruct.triangulate import occlusion_test
     from pointtraj.session import Capture
     from pointtraj.trajectories import dequantize_visibility
@@ -192,7 +193,7 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
 
     from pointtraj.evaluate.views import view_audit
-    from pointtraj.reconstruct.track import ReconstructConfig
+    from pointtraj.reconstruct.config import ReconstructConfig
     from pointtraj.trajectories import Trajectories
     from pointtraj.workdir import parse_frames
 

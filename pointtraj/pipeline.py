@@ -29,7 +29,7 @@ from typing import Any, Literal
 from .affinity import AffinityConfig
 from .errors import FileFormatError, ValidationError
 from .evaluate.study import EvaluateConfig
-from .reconstruct.track import ReconstructConfig
+from .reconstruct.config import ReconstructConfig
 from .render.config import RenderConfig
 from .stages import (
     LabelStageConfig,

@@ -40,7 +40,7 @@ from .workdir import WorkFolder, parse_frames
 if TYPE_CHECKING:
     from .affinity import AffinityGraph
     from .labelfile import TrajectoryLabels
-    from .reconstruct.track import ReconstructConfig
+    from .reconstruct.config import ReconstructConfig
     from .semantics.semantic_map import SemanticMap
     from .synth.render import CaptureSummary
     from .trajectories import Trajectories
@@ -210,7 +210,7 @@ def load_reconstruct_config(path: str | os.PathLike | None) -> ReconstructConfig
         the file and the key).
     """
     from .config import from_mapping, load_toml
-    from .reconstruct.track import ReconstructConfig
+    from .reconstruct.config import ReconstructConfig
 
     if path is None:
         return ReconstructConfig()
@@ -268,7 +268,8 @@ def reconstruct_work(
     -----
     A restart removes only the files pointtraj wrote (:meth:`WorkFolder.remove_outputs`).
     """
-    from .reconstruct.track import ReconstructConfig, reconstruct_capture
+    from .reconstruct.config import ReconstructConfig
+    from .reconstruct.stage import reconstruct_capture
     from .session import Capture
 
     if on_change not in ("refuse", "restart"):

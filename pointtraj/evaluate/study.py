@@ -382,7 +382,7 @@ def _views_section(capture: Path, traj, metrics: dict, progress) -> Section:
 
     Adds ``gt.views.<key>`` and ``gt.views.<key>.support`` for the keys of :data:`VIEW_KEYS`.
     """
-    from ..reconstruct.track import ReconstructConfig
+    from ..reconstruct.config import ReconstructConfig
     from .views import view_audit
 
     step = _tick(progress, "evaluate: view audit", traj.num_frames)

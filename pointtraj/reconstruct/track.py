@@ -2,62 +2,49 @@
 
 At every frame t the live points ``X_{t-1}`` are projected into the cameras where
 ``V(X_{t-1}, c) > eps_s``, tracked there to frame t with pyramidal Lucas-Kanade (one batched call
-per camera, with a forward-backward check), re-triangulated with RANSAC from the tracked 2D
-positions, and their visibility is updated from the reprojection errors (and an occlusion test
-against the frame's own points). A trajectory stops when its mean reprojection error exceeds
-``max_mean_error_px`` or fewer than ``min_views`` cameras still see it. Dense matching
-(:mod:`.matching`) then triangulates new points; those not already covered by a live trajectory
-start new trajectories. Trajectories thus emerge and dissolve at different times.
+per camera, with a forward-backward check; :mod:`.flow`), re-triangulated with RANSAC from the
+tracked 2D positions, and their visibility is updated from the reprojection errors (and an
+occlusion test against the frame's own points). A trajectory stops when its mean reprojection
+error exceeds ``max_mean_error_px`` or fewer than ``min_views`` cameras still see it. Dense
+matching (:mod:`.matching`) then triangulates new points; those not already covered by a live
+trajectory start new trajectories. Trajectories thus emerge and dissolve at different times.
 
-:func:`reconstruct_capture` streams a capture frame by frame into a work folder, writing each
-frame's point cloud and tracker state atomically so that an interrupted run resumes from the last
-complete frame, and assembles the ragged :class:`~pointtraj.trajectories.Trajectories` store.
+This module holds the :class:`Tracker`, its state (:class:`TrackState`) and per-frame output
+(:class:`FrameRecord`); :mod:`.stage` streams a capture through it.
 """
 
 from __future__ import annotations
 
 import logging
-import os
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..atomic import save_npz_atomic
 from ..camera import CameraRig
-from ..errors import FileFormatError, ValidationError, check_array
+from ..errors import ValidationError, check_array
 from ..geometry import axis_angles
-from ..npzfile import load_npz
-from ..trajectories import Trajectories, frame_pointcloud, quantize_visibility, write_cloud_ply
-from .densify import DensifyConfig
-from .matching import MatchingConfig, MultiViewTracks, match_frame, resolve_ambiguous
-from .stitch import StitchConfig, stitch_trajectories
-from .survive import SurviveConfig, carry_one_view, predict_rigid
-from .views import ViewsConfig, depth_uncertainty, discover_views
+from ..trajectories import quantize_visibility
+from .config import ReconstructConfig
+from .flow import expand_views, to_grey, track_flow
+from .matching import MultiViewTracks, match_frame, resolve_ambiguous
+from .survive import carry_one_view, predict_rigid
+from .views import depth_uncertainty, discover_views
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .triangulate import Triangulation, TriangulationConfig
+    from .triangulate import Triangulation
 
 __all__ = [
-    "ReconstructConfig",
     "TrackState",
     "FrameRecord",
     "Tracker",
-    "track_flow",
-    "axis_angles",
-    "expand_views",
     "select_edges",
     "covered_by",
     "sample_colors",
-    "assemble_trajectories",
-    "reconstruct_capture",
 ]
 
 logger = logging.getLogger(__name__)
-
-STATE_FORMAT_VERSION = 1
 
 #: Why a trajectory ends: its flow succeeded in fewer than ``min_views`` cameras (lost by
 #: Lucas-Kanade or the forward-backward check, or out of the images); the RANSAC
@@ -66,188 +53,6 @@ STATE_FORMAT_VERSION = 1
 #: above ``visibility_threshold``; or, on fewer than two views already (``[reconstruct.survive]``),
 #: it lost its last one, its view and its neighbours' motion disagreed, or its frames ran out.
 STOP_REASONS = ("flow", "triangulation", "occlusion", "visibility", "one-view")
-
-
-@dataclass(frozen=True)
-class ReconstructConfig:
-    """Every parameter of the reconstruction stage (TOML table ``[reconstruct]``).
-
-    Attributes
-    ----------
-    sigma_px : float
-        sigma, the reprojection-error tolerance of the visibility
-        ``V(X, c) = exp(-(e_c / sigma)^2)`` (paper Section 5, step 2).
-    visibility_threshold : float
-        eps_s: a point is tracked in camera c at the next frame only where ``V(X, c) > eps_s``.
-        The default 0.05 keeps views with a reprojection error below ``sigma * sqrt(-ln 0.05)``,
-        about 1.7 sigma.
-    ransac_threshold_px : float
-        Inlier threshold of the RANSAC triangulation.
-    ransac_iterations : int
-        Hypotheses per point of the RANSAC triangulation.
-    max_mean_error_px : float
-        A trajectory stops when its mean inlier reprojection error exceeds this (paper: 2 px).
-    min_views : int
-        A trajectory stops when fewer cameras see it (``V > eps_s``) (paper: 2).
-    min_views_new : int
-        Inlier views a newly matched point needs to start a trajectory; 3 rejects most false
-        two-view matches (two views always agree with a wrong match along the epipolar line).
-    lk_window : int
-        Lucas-Kanade window size in pixels.
-    lk_levels : int
-        Lucas-Kanade pyramid levels above the full resolution.
-    lk_start : {"projection", "observation"}
-        Where the flow starts in each camera: the projection of ``X_{t-1}`` (the paper) or the
-        previous tracked 2D position.
-    fb_max_px : float
-        Forward-backward flow check: a view is dropped when tracking forward then backward ends
-        farther than this from the start.
-    cover_px : float
-        A new point is already covered when, in at least ``cover_views`` of its cameras, a live
-        trajectory's observation lies within this many pixels of its own.
-    cover_views : int
-        See ``cover_px``.
-    occlusion_depth_m : float
-        Depth tolerance of the occlusion test against the frame's own points (metres), and its
-        upper bound when it comes from the points' uncertainty; 0 turns the test off.
-    occlusion_sigmas : float
-        The occlusion test's tolerance per point: each point is the depth interval of this many
-        standard deviations of its depth on each side (from its triangulation angle,
-        :func:`~.views.depth_uncertainty`), within ``[occlusion_min_m, occlusion_depth_m]``
-        in all; a point is hidden only by a point whose interval lies wholly in front of its
-        own. 0: the fixed ``occlusion_depth_m`` for every point.
-    occlusion_min_m : float
-        Lower bound of the per-point tolerance (a surface's thickness that no point resolves).
-    occlusion_cell_px : float
-        Z-buffer cell size of the occlusion test.
-    max_angle_deg : float
-        Camera pairs whose optical axes differ by more are not matched (connectivity graph).
-    max_pairs_per_camera : int
-        Keep only this many smallest-angle partners per camera (0: all within
-        ``max_angle_deg``); bounds the matching cost of large rigs. Rigs of up to 13 cameras
-        keep every pair; on the paper's 69 cameras 12 partners give the same points and
-        errors as all 1266 pairs at 2.5 times less CPU (``benchmarks/bench_matching.py``).
-    match_every : int
-        Run dense matching (new trajectories) every this many frames (1: every frame, the paper).
-    expand_views : bool
-        View expansion by flow (off by default): after each frame, look for every point in the
-        cameras that should see it by Lucas-Kanade flow from its nearest observing camera,
-        started at the point's projection (:func:`expand_views`); accepted views join a RANSAC
-        re-triangulation. It only reaches cameras within ``expand_max_angle_deg``; view
-        discovery (``views``) searches every baseline and replaces it: on paper69 (frames 0-2)
-        discovery alone reaches a view recall of 0.49 at 1.1 times the CPU time of neither, and
-        both together 0.53 at 1.6 times (``docs/reconstruction.md``).
-    expand_max_angle_deg : float
-        A camera is searched from an observing camera whose optical axis is at most this far
-        from its own (the flow's patch must look alike in both).
-    expand_px : float
-        The flow's result must lie within this many pixels of the point's projection.
-    seed : int
-        Seed of the RANSAC sampling.
-    matching : MatchingConfig
-        Feature detection and matching (table ``[reconstruct.matching]``).
-    densify : DensifyConfig
-        Patch densification around the frame's points, for wide baselines where features and
-        view expansion find little (table ``[reconstruct.densify]``; off by default).
-    views : ViewsConfig
-        View discovery by a plane sweep, at any baseline: every point is searched in the
-        cameras that should see it and that flow (``expand_views``) cannot reach (table
-        ``[reconstruct.views]``; :mod:`pointtraj.reconstruct.views`).
-    stitch : StitchConfig
-        Joining a trajectory that ended to one born where it would have gone, across gaps of
-        a frame or two (table ``[reconstruct.stitch]``; :mod:`pointtraj.reconstruct.stitch`).
-    survive : SurviveConfig
-        A point that drops to one view goes on for a few frames, carried by its neighbours'
-        rigid motion where its remaining view agrees (table ``[reconstruct.survive]``;
-        :mod:`pointtraj.reconstruct.survive`).
-    """
-
-    sigma_px: float = 1.0
-    visibility_threshold: float = 0.05
-    ransac_threshold_px: float = 2.0
-    ransac_iterations: int = 50
-    max_mean_error_px: float = 2.0
-    min_views: int = 2
-    min_views_new: int = 2
-    lk_window: int = 21
-    lk_levels: int = 3
-    lk_start: Literal["projection", "observation"] = "projection"
-    fb_max_px: float = 1.0
-    cover_px: float = 3.0
-    cover_views: int = 2
-    occlusion_depth_m: float = 0.05
-    occlusion_sigmas: float = 3.0
-    occlusion_min_m: float = 0.01
-    occlusion_cell_px: float = 8.0
-    max_angle_deg: float = 90.0
-    max_pairs_per_camera: int = 12
-    match_every: int = 1
-    expand_views: bool = False
-    expand_max_angle_deg: float = 40.0
-    expand_px: float = 2.0
-    seed: int = 0
-    matching: MatchingConfig = field(default_factory=MatchingConfig)
-    densify: DensifyConfig = field(default_factory=DensifyConfig)
-    views: ViewsConfig = field(default_factory=ViewsConfig)
-    stitch: StitchConfig = field(default_factory=StitchConfig)
-    survive: SurviveConfig = field(default_factory=SurviveConfig)
-
-    def __post_init__(self) -> None:
-        checks = {
-            "sigma_px": self.sigma_px > 0,
-            "visibility_threshold": 0 <= self.visibility_threshold < 1,
-            "ransac_threshold_px": self.ransac_threshold_px > 0,
-            "ransac_iterations": self.ransac_iterations >= 1,
-            "max_mean_error_px": self.max_mean_error_px > 0,
-            "min_views": self.min_views >= 2,
-            "min_views_new": self.min_views_new >= self.min_views,
-            "lk_window": self.lk_window >= 5,
-            "lk_levels": self.lk_levels >= 0,
-            "fb_max_px": self.fb_max_px > 0,
-            "cover_px": self.cover_px >= 0,
-            "cover_views": self.cover_views >= 1,
-            "occlusion_depth_m": self.occlusion_depth_m >= 0,
-            "occlusion_sigmas": self.occlusion_sigmas >= 0,
-            "occlusion_min_m": 0 <= self.occlusion_min_m <= max(self.occlusion_depth_m, 0),
-            "occlusion_cell_px": self.occlusion_cell_px > 0,
-            "max_angle_deg": 0 < self.max_angle_deg <= 180,
-            "max_pairs_per_camera": self.max_pairs_per_camera >= 0,
-            "match_every": self.match_every >= 1,
-            "expand_max_angle_deg": 0 < self.expand_max_angle_deg <= 180,
-            "expand_px": self.expand_px > 0,
-        }
-        bad = [k for k, ok in checks.items() if not ok]
-        if bad:
-            raise ValidationError(
-                f"ReconstructConfig.{bad[0]} out of range: {getattr(self, bad[0])!r}"
-            )
-        if self.lk_start not in ("projection", "observation"):
-            raise ValidationError(
-                f"ReconstructConfig.lk_start must be 'projection' or 'observation', "
-                f"got {self.lk_start!r}"
-            )
-        if not isinstance(self.matching, MatchingConfig):
-            raise ValidationError("ReconstructConfig.matching must be a MatchingConfig")
-        if not isinstance(self.densify, DensifyConfig):
-            raise ValidationError("ReconstructConfig.densify must be a DensifyConfig")
-        if not isinstance(self.views, ViewsConfig):
-            raise ValidationError("ReconstructConfig.views must be a ViewsConfig")
-        if not isinstance(self.stitch, StitchConfig):
-            raise ValidationError("ReconstructConfig.stitch must be a StitchConfig")
-        if not isinstance(self.survive, SurviveConfig):
-            raise ValidationError("ReconstructConfig.survive must be a SurviveConfig")
-
-    def triangulation(self) -> TriangulationConfig:
-        """The matching :class:`TriangulationConfig`."""
-        from .triangulate import TriangulationConfig
-
-        return TriangulationConfig(
-            threshold_px=self.ransac_threshold_px,
-            sigma_px=self.sigma_px,
-            iterations=self.ransac_iterations,
-            min_views=self.min_views,
-            seed=self.seed,
-        )
 
 
 @dataclass
@@ -330,185 +135,6 @@ class FrameRecord:
 
 
 # -- building blocks --------------------------------------------------------------------------
-
-
-def _flow_fb(
-    img0: np.ndarray,
-    img1: np.ndarray,
-    p0: np.ndarray,
-    lk: dict,
-    fb_max_px: float,
-    guess: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Lucas-Kanade flow ``img0`` -> ``img1`` and back, with the forward-backward check.
-
-    Parameters
-    ----------
-    img0, img1 : (H, W) uint8 ndarray
-    p0 : (K, 2) float ndarray
-        Positions in ``img0``.
-    lk : dict
-        ``calcOpticalFlowPyrLK`` keyword arguments (window, levels, criteria).
-    fb_max_px : float
-        Maximum forward-backward error.
-    guess : (K, 2) float ndarray, optional
-        Start of the forward flow in ``img1`` (the backward flow then starts at ``p0``);
-        default: both start where they come from.
-
-    Returns
-    -------
-    p1 : (K, 2) float32 ndarray
-        Positions in ``img1``.
-    good : (K,) bool ndarray
-        Converged both ways, back within ``fb_max_px`` and inside ``img1``.
-    """
-    import cv2
-
-    a = np.ascontiguousarray(p0, dtype=np.float32).reshape(-1, 1, 2)
-    fwd, back = None, None
-    if guess is not None:
-        lk = {**lk, "flags": cv2.OPTFLOW_USE_INITIAL_FLOW}
-        fwd = np.ascontiguousarray(guess, dtype=np.float32).reshape(-1, 1, 2)
-        back = a.copy()
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, a, fwd, **lk)
-    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, back, **lk)
-    p1 = p1.reshape(-1, 2)
-    fb = np.linalg.norm(p0b.reshape(-1, 2) - a.reshape(-1, 2), axis=1)
-    h, w = img1.shape[:2]
-    good = (
-        (st1.ravel() == 1)
-        & (st2.ravel() == 1)
-        & (fb <= fb_max_px)
-        & (p1[:, 0] >= -0.5)
-        & (p1[:, 0] < w - 0.5)
-        & (p1[:, 1] >= -0.5)
-        & (p1[:, 1] < h - 0.5)
-    )
-    return p1, good
-
-
-def track_flow(
-    prev_grey: np.ndarray,
-    grey: np.ndarray,
-    points: np.ndarray,
-    *,
-    window: int = 21,
-    levels: int = 3,
-    fb_max_px: float = 1.0,
-) -> np.ndarray:
-    """Pyramidal Lucas-Kanade flow of many points at once, with a forward-backward check.
-
-    Parameters
-    ----------
-    prev_grey, grey : (H, W) uint8 ndarray
-        Consecutive grey images of one camera.
-    points : (K, 2) float ndarray
-        Pixel positions in ``prev_grey``; NaN rows are skipped.
-    window, levels : int
-        Lucas-Kanade window size and pyramid levels.
-    fb_max_px : float
-        Maximum forward-backward error.
-
-    Returns
-    -------
-    (K, 2) float32 ndarray
-        Positions in ``grey``; NaN where the flow failed, left the image or the
-        forward-backward error exceeds ``fb_max_px``.
-    """
-    import cv2
-
-    p = check_array("points", points, (None, 2))
-    out = np.full(p.shape, np.nan, np.float32)
-    idx = np.flatnonzero(np.all(np.isfinite(p), axis=1))
-    if idx.size == 0:
-        return out
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
-    lk = {"winSize": (window, window), "maxLevel": levels, "criteria": crit}
-    p1, good = _flow_fb(prev_grey, grey, p[idx], lk, fb_max_px)
-    out[idx[good]] = p1[good]
-    return out
-
-
-def expand_views(
-    rig: CameraRig,
-    grey: Sequence[np.ndarray],
-    points: np.ndarray,
-    pixels: np.ndarray,
-    candidates: np.ndarray,
-    *,
-    max_angle_deg: float = 40.0,
-    max_px: float = 2.0,
-    window: int = 21,
-    levels: int = 1,
-    fb_max_px: float = 1.0,
-    projection=None,
-) -> np.ndarray:
-    """Find points in more cameras by flow from an observing camera (view expansion).
-
-    For each candidate (camera c, point n), the observing camera r of n whose optical axis is
-    nearest c's gives the patch: Lucas-Kanade flow from ``pixels[r, n]`` in image r to image c,
-    started at the point's projection into c, then back (forward-backward check). The view is
-    accepted where the flow converges, comes back within ``fb_max_px`` and ends within
-    ``max_px`` of the projection. One flow call per (r, c) camera pair.
-
-    Parameters
-    ----------
-    rig : CameraRig
-        C cameras.
-    grey : list of C (H, W) uint8 ndarrays
-        The frame's grey images.
-    points : (N, 3) float ndarray
-    pixels : (C, N, 2) float ndarray
-        The observations so far (NaN where a camera does not observe the point).
-    candidates : (C, N) bool ndarray
-        Where to search (e.g. in the image, not occluded, not observed).
-    max_angle_deg : float
-        Largest angle between the optical axes of r and c.
-    max_px, window, levels, fb_max_px
-        Acceptance distance to the projection, flow window, pyramid levels and the
-        forward-backward tolerance.
-    projection : Projection, optional
-        ``rig.project(points)`` when the caller has it.
-
-    Returns
-    -------
-    (C, N, 2) float64 ndarray
-        ``pixels`` with the accepted new observations filled in.
-    """
-    import cv2
-
-    C = len(rig)
-    pix = check_array("pixels", pixels, (C, None, 2)).astype(np.float64)
-    N = pix.shape[1]
-    cand = check_array("candidates", candidates, (C, N), dtype=bool)
-    out = pix.copy()
-    observed = np.all(np.isfinite(pix), axis=2)  # (C, N)
-    cand = cand & ~observed & observed.any(axis=0)[None, :]
-    if not cand.any():
-        return out
-    proj = rig.project(points) if projection is None else projection
-    angle = axis_angles(rig)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
-    lk = {"winSize": (window, window), "maxLevel": levels, "criteria": crit}
-    for c in np.flatnonzero(cand.any(axis=1)):
-        n_c = np.flatnonzero(cand[c])
-        # nearest observing camera (by optical axis) of each candidate point
-        ang = np.where(observed[:, n_c], angle[c][:, None], np.inf)  # (C, n)
-        ref = np.argmin(ang, axis=0)
-        ok = ang[ref, np.arange(n_c.size)] <= max_angle_deg
-        n_c, ref = n_c[ok], ref[ok]
-        for r in np.unique(ref):
-            n = n_c[ref == r]
-            guess = proj.pixels[c, n]
-            p1, good = _flow_fb(grey[r], grey[c], pix[r, n], lk, fb_max_px, guess=guess)
-            good &= np.linalg.norm(p1 - guess, axis=1) <= max_px
-            out[c, n[good]] = p1[good]
-    logger.debug(
-        "view expansion: %d of %d candidate views accepted",
-        int(np.all(np.isfinite(out), axis=2).sum() - observed.sum()),
-        int(cand.sum()),
-    )
-    return out
 
 
 def select_edges(
@@ -617,15 +243,6 @@ def sample_colors(
     return out
 
 
-def _to_grey(image: np.ndarray) -> np.ndarray:
-    import cv2
-
-    img = np.asarray(image)
-    if img.ndim == 2:
-        return img
-    return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-
-
 def occlusion_tolerance(
     config: ReconstructConfig, rig: CameraRig, xyz: np.ndarray, observed: np.ndarray
 ) -> float | np.ndarray:
@@ -723,7 +340,7 @@ class Tracker:
 
     def set_previous_images(self, images: Sequence[np.ndarray]) -> None:
         """Give the images of ``state.frame`` (needed to resume tracking)."""
-        self._prev_grey = [_to_grey(im) for im in images]
+        self._prev_grey = [to_grey(im) for im in images]
 
     # -- one frame -----------------------------------------------------------------------------
     def step(self, t: int, images: Sequence[np.ndarray]) -> FrameRecord:
@@ -749,7 +366,7 @@ class Tracker:
         C = len(rig)
         if len(images) != C:
             raise ValidationError(f"images: expected {C} images, got {len(images)}")
-        grey = [_to_grey(im) for im in images]
+        grey = [to_grey(im) for im in images]
         st = self.state
         restart = st.frame != t - 1 or self._prev_grey is None
         if restart:
@@ -903,7 +520,7 @@ class Tracker:
         err: np.ndarray,
         pix: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """View expansion (:func:`expand_views`) and re-triangulation of the points it grew."""
+        """View expansion (:func:`~.flow.expand_views`); re-triangulation of the points it grew."""
         cfg = self.config
         proj = self.rig.project(xyz)
         cand = proj.in_image & ~self._occluded(xyz, vis, proj).T
@@ -1130,239 +747,3 @@ def _empty_live(C: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
         np.zeros((0, C), np.float32),
         np.zeros((C, 0, 2), np.float32),
     )
-
-
-# -- assembling the store ---------------------------------------------------------------------
-
-
-def assemble_trajectories(
-    records: Sequence[FrameRecord], camera_names: list[str], fps: float, num_frames: int
-) -> Trajectories:
-    """Build the ragged store from per-frame records (one stable sort by trajectory id).
-
-    Parameters
-    ----------
-    records : list of FrameRecord
-        In frame order; a trajectory's frames must be consecutive.
-    camera_names : list of str
-    fps : float
-    num_frames : int
-
-    Returns
-    -------
-    Trajectories
-        Trajectory m is the one with id m; ids must be ``0 .. M-1``.
-    """
-    C = len(camera_names)
-    if not records:
-        return Trajectories(
-            np.zeros(0, np.int64),
-            np.zeros(1, np.int64),
-            np.zeros((0, 3), np.float32),
-            np.zeros((0, C), np.uint8),
-            np.zeros(0, np.float32),
-            np.zeros((0, 3), np.uint8),
-            camera_names=list(camera_names),
-            fps=fps,
-            num_frames=num_frames,
-        )
-    ids = np.concatenate([r.ids for r in records])  # (P,)
-    frames = np.concatenate([np.full(len(r), r.frame, np.int64) for r in records])
-    order = np.lexsort((frames, ids))  # by id, then frame
-    ids_s = ids[order]
-    M = int(ids_s[-1]) + 1 if ids_s.size else 0
-    counts = np.bincount(ids_s, minlength=M)
-    if np.any(counts == 0):
-        raise ValidationError("assemble_trajectories: trajectory ids are not 0 .. M-1")
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    first = frames[order][offsets[:-1]]
-    span = frames[order][offsets[1:] - 1] - first + 1
-    if np.any(span != counts):
-        raise ValidationError("assemble_trajectories: a trajectory skips a frame")
-    return Trajectories(
-        first_frame=first,
-        offsets=offsets,
-        xyz=np.concatenate([r.xyz for r in records])[order],
-        visibility=np.concatenate([r.visibility for r in records])[order],
-        reprojection_error=np.concatenate([r.error for r in records])[order],
-        color=np.concatenate([r.color for r in records])[order],
-        camera_names=list(camera_names),
-        fps=fps,
-        num_frames=num_frames,
-    )
-
-
-# -- work folder streaming --------------------------------------------------------------------
-
-
-def _state_path(work: Path, t: int) -> Path:
-    return work / "state" / f"{t:06d}.npz"
-
-
-def _save_state(path: Path, record: FrameRecord, state: TrackState) -> None:
-    save_npz_atomic(
-        path,
-        format_version=np.int64(STATE_FORMAT_VERSION),
-        frame=np.int64(record.frame),
-        rec_ids=record.ids,
-        rec_xyz=record.xyz,
-        rec_visibility=record.visibility,
-        rec_error=record.error,
-        rec_color=record.color,
-        rec_num_new=np.int64(record.num_new),
-        live_ids=state.ids,
-        live_xyz=state.xyz,
-        live_visibility=state.visibility,
-        live_pixels=state.pixels,
-        live_lone=state.lone,
-        next_id=np.int64(state.next_id),
-    )
-
-
-_STATE_KEYS = (
-    "frame",
-    "rec_ids",
-    "rec_xyz",
-    "rec_visibility",
-    "rec_error",
-    "rec_color",
-    "rec_num_new",
-    "live_ids",
-    "live_xyz",
-    "live_visibility",
-    "live_pixels",
-    "next_id",
-)
-
-
-def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
-    d = load_npz(path, _STATE_KEYS, "a tracker state")
-    try:
-        t = int(d["frame"])
-        rec = FrameRecord(
-            t,
-            d["rec_ids"],
-            d["rec_xyz"],
-            d["rec_visibility"],
-            d["rec_error"],
-            d["rec_color"],
-            int(d["rec_num_new"]),
-        )
-        st = TrackState(
-            t,
-            d["live_ids"],
-            d["live_xyz"],
-            d["live_visibility"],
-            d["live_pixels"],
-            int(d["next_id"]),
-            d.get("live_lone"),  # absent in the states of older versions
-        )
-    except (ValueError, TypeError) as exc:
-        raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
-    if st.visibility.shape[1:] != (num_cameras,) or rec.visibility.shape[1:] != (num_cameras,):
-        raise FileFormatError(path, f"tracker state is not for {num_cameras} cameras")
-    return rec, st
-
-
-def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
-    """Write one frame's points as a PLY (:func:`~pointtraj.trajectories.frame_pointcloud`'s
-    attributes, ``track_id`` as int32).
-
-    Parameters
-    ----------
-    path : path-like
-    record : FrameRecord
-    """
-    write_cloud_ply(path, frame_pointcloud(record.xyz, record.color, record.visibility, record.ids))
-
-
-def reconstruct_capture(
-    capture,
-    work: str | os.PathLike,
-    frames: range | None = None,
-    config: ReconstructConfig | None = None,
-    *,
-    on_frame: Callable[[FrameRecord], None] | None = None,
-) -> Trajectories:
-    """Reconstruct trajectories of a capture into a work folder, resuming where it stopped.
-
-    Writes ``clouds/<t:06d>.ply`` and ``state/<t:06d>.npz`` per frame (the state file last, so
-    that it marks the frame complete), then ``trajectories.npz``. Frames whose state file
-    exists (contiguously from ``frames.start``) are not recomputed.
-
-    Parameters
-    ----------
-    capture : pointtraj.session.Capture
-        With ``rig``, ``camera_names``, ``num_frames``, ``fps`` and ``read(camera, frame)``.
-    work : path-like
-        The work folder.
-    frames : range, optional
-        Frames to process (step 1), default all.
-    config : ReconstructConfig, optional
-    on_frame : callable, optional
-        Called with each frame's record (also for resumed frames), e.g. to advance a progress
-        bar.
-
-    Returns
-    -------
-    Trajectories
-    """
-    cfg = config or ReconstructConfig()
-    work = Path(work)
-    rig = capture.rig
-    names = list(rig.names)
-    if len(names) < 2:
-        raise FileFormatError(
-            getattr(capture, "path", work),
-            f"reconstruction needs at least 2 cameras; the capture has {len(names)} "
-            f"({', '.join(names)})",
-        )
-    T = int(capture.num_frames)
-    frames = range(T) if frames is None else frames
-    if frames.step != 1 or len(frames) == 0 or frames.start < 0 or frames.stop > T:
-        raise ValidationError(
-            f"frames {frames.start}:{frames.stop} must be a non-empty range within [0, {T})"
-        )
-    records: list[FrameRecord] = []
-    state = None
-    for t in frames:  # resume: contiguous complete frames
-        path = _state_path(work, t)
-        if not path.is_file():
-            break
-        rec, state = _load_state(path, len(rig))
-        records.append(rec)
-        if on_frame is not None:
-            on_frame(rec)
-    if records:
-        logger.info("resuming after frame %d (%d frames done)", records[-1].frame, len(records))
-    tracker = Tracker(rig, cfg, state=state, first_frame=frames.start)
-    if state is not None and len(records) < len(frames):
-        tracker.set_previous_images([capture.read(n, state.frame) for n in names])
-    for t in frames[len(records) :]:
-        images = [capture.read(n, t) for n in names]
-        rec = tracker.step(t, images)
-        if len(rec.ids) == 0:
-            logger.warning(
-                "frame %d: no point reconstructed (black or featureless images?); "
-                "writing an empty cloud and going on",
-                t,
-            )
-        write_frame_cloud(work / "clouds" / f"{t:06d}.ply", rec)
-        _save_state(_state_path(work, t), rec, tracker.state)
-        records.append(rec)
-        if on_frame is not None:
-            on_frame(rec)
-    ended = sum(tracker.stops.values())
-    if ended:
-        logger.info(
-            "%d trajectories ended in the frames reconstructed now: %s",
-            ended,
-            ", ".join(f"{k} {100 * v / ended:.1f} %" for k, v in tracker.stops.items()),
-        )
-    traj = assemble_trajectories(records, names, float(capture.fps), T)
-    stitched, new_id = stitch_trajectories(traj, cfg.stitch)
-    if stitched is not traj:  # the clouds carry the stitched trajectories' ids
-        for t in frames:
-            stitched.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
-    stitched.save(work / "trajectories.npz")
-    return stitched

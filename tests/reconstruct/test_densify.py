@@ -11,9 +11,10 @@ from test_track import make_texture, render_plane
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.config import from_mapping
 from pointtraj.errors import ValidationError
+from pointtraj.reconstruct.config import ReconstructConfig
 from pointtraj.reconstruct.densify import DensifyConfig, densify, prepare_images
 from pointtraj.reconstruct.matching import MatchingConfig
-from pointtraj.reconstruct.track import ReconstructConfig, Tracker
+from pointtraj.reconstruct.track import Tracker
 from pointtraj.reconstruct.triangulate import triangulate_points
 
 

@@ -13,9 +13,10 @@ from test_track import make_texture, render_plane
 
 from pointtraj.config import from_mapping
 from pointtraj.errors import ValidationError
+from pointtraj.reconstruct.config import ReconstructConfig
 from pointtraj.reconstruct.matching import MatchingConfig
 from pointtraj.reconstruct.survive import SurviveConfig, carry_one_view, predict_rigid
-from pointtraj.reconstruct.track import ReconstructConfig, Tracker, occlusion_tolerance
+from pointtraj.reconstruct.track import Tracker, occlusion_tolerance
 from pointtraj.reconstruct.triangulate import occlusion_test
 
 

@@ -8,17 +8,16 @@ import pytest
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.config import from_mapping
 from pointtraj.errors import ValidationError
+from pointtraj.reconstruct.config import ReconstructConfig
+from pointtraj.reconstruct.flow import expand_views, track_flow
 from pointtraj.reconstruct.matching import MatchingConfig
+from pointtraj.reconstruct.stage import assemble_trajectories
 from pointtraj.reconstruct.track import (
     FrameRecord,
-    ReconstructConfig,
     Tracker,
-    assemble_trajectories,
     covered_by,
-    expand_views,
     sample_colors,
     select_edges,
-    track_flow,
 )
 from pointtraj.trajectories import Trajectories
 

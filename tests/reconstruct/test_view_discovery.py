@@ -13,9 +13,11 @@ from test_track import make_texture, render_plane
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.config import from_mapping
 from pointtraj.errors import ValidationError
+from pointtraj.reconstruct.config import ReconstructConfig
 from pointtraj.reconstruct.densify import prepare_images
+from pointtraj.reconstruct.flow import expand_views
 from pointtraj.reconstruct.matching import MatchingConfig
-from pointtraj.reconstruct.track import ReconstructConfig, Tracker, expand_views
+from pointtraj.reconstruct.track import Tracker
 from pointtraj.reconstruct.views import ViewsConfig, depth_uncertainty, discover_views
 
 

@@ -1,0 +1,200 @@
+"""The reconstruction stage's parameters: :class:`ReconstructConfig` (table ``[reconstruct]``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
+
+from ..errors import ValidationError
+from .densify import DensifyConfig
+from .matching import MatchingConfig
+from .stitch import StitchConfig
+from .survive import SurviveConfig
+from .views import ViewsConfig
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .triangulate import TriangulationConfig
+
+__all__ = ["ReconstructConfig"]
+
+
+@dataclass(frozen=True)
+class ReconstructConfig:
+    """Every parameter of the reconstruction stage (TOML table ``[reconstruct]``).
+
+    Attributes
+    ----------
+    sigma_px : float
+        sigma, the reprojection-error tolerance of the visibility
+        ``V(X, c) = exp(-(e_c / sigma)^2)`` (paper Section 5, step 2).
+    visibility_threshold : float
+        eps_s: a point is tracked in camera c at the next frame only where ``V(X, c) > eps_s``.
+        The default 0.05 keeps views with a reprojection error below ``sigma * sqrt(-ln 0.05)``,
+        about 1.7 sigma.
+    ransac_threshold_px : float
+        Inlier threshold of the RANSAC triangulation.
+    ransac_iterations : int
+        Hypotheses per point of the RANSAC triangulation.
+    max_mean_error_px : float
+        A trajectory stops when its mean inlier reprojection error exceeds this (paper: 2 px).
+    min_views : int
+        A trajectory stops when fewer cameras see it (``V > eps_s``) (paper: 2).
+    min_views_new : int
+        Inlier views a newly matched point needs to start a trajectory; 3 rejects most false
+        two-view matches (two views always agree with a wrong match along the epipolar line).
+    lk_window : int
+        Lucas-Kanade window size in pixels.
+    lk_levels : int
+        Lucas-Kanade pyramid levels above the full resolution.
+    lk_start : {"projection", "observation"}
+        Where the flow starts in each camera: the projection of ``X_{t-1}`` (the paper) or the
+        previous tracked 2D position.
+    fb_max_px : float
+        Forward-backward flow check: a view is dropped when tracking forward then backward ends
+        farther than this from the start.
+    cover_px : float
+        A new point is already covered when, in at least ``cover_views`` of its cameras, a live
+        trajectory's observation lies within this many pixels of its own.
+    cover_views : int
+        See ``cover_px``.
+    occlusion_depth_m : float
+        Depth tolerance of the occlusion test against the frame's own points (metres), and its
+        upper bound when it comes from the points' uncertainty; 0 turns the test off.
+    occlusion_sigmas : float
+        The occlusion test's tolerance per point: each point is the depth interval of this many
+        standard deviations of its depth on each side (from its triangulation angle,
+        :func:`~.views.depth_uncertainty`), within ``[occlusion_min_m, occlusion_depth_m]``
+        in all; a point is hidden only by a point whose interval lies wholly in front of its
+        own. 0: the fixed ``occlusion_depth_m`` for every point.
+    occlusion_min_m : float
+        Lower bound of the per-point tolerance (a surface's thickness that no point resolves).
+    occlusion_cell_px : float
+        Z-buffer cell size of the occlusion test.
+    max_angle_deg : float
+        Camera pairs whose optical axes differ by more are not matched (connectivity graph).
+    max_pairs_per_camera : int
+        Keep only this many smallest-angle partners per camera (0: all within
+        ``max_angle_deg``); bounds the matching cost of large rigs. Rigs of up to 13 cameras
+        keep every pair; on the paper's 69 cameras 12 partners give the same points and
+        errors as all 1266 pairs at 2.5 times less CPU (``benchmarks/bench_matching.py``).
+    match_every : int
+        Run dense matching (new trajectories) every this many frames (1: every frame, the paper).
+    expand_views : bool
+        View expansion by flow (off by default): after each frame, look for every point in the
+        cameras that should see it by Lucas-Kanade flow from its nearest observing camera,
+        started at the point's projection (:func:`~.flow.expand_views`); accepted views join a
+        RANSAC re-triangulation. It only reaches cameras within ``expand_max_angle_deg``; view
+        discovery (``views``) searches every baseline and replaces it: on paper69 (frames 0-2)
+        discovery alone reaches a view recall of 0.49 at 1.1 times the CPU time of neither, and
+        both together 0.53 at 1.6 times (``docs/reconstruction.md``).
+    expand_max_angle_deg : float
+        A camera is searched from an observing camera whose optical axis is at most this far
+        from its own (the flow's patch must look alike in both).
+    expand_px : float
+        The flow's result must lie within this many pixels of the point's projection.
+    seed : int
+        Seed of the RANSAC sampling.
+    matching : MatchingConfig
+        Feature detection and matching (table ``[reconstruct.matching]``).
+    densify : DensifyConfig
+        Patch densification around the frame's points, for wide baselines where features and
+        view expansion find little (table ``[reconstruct.densify]``; off by default).
+    views : ViewsConfig
+        View discovery by a plane sweep, at any baseline: every point is searched in the
+        cameras that should see it and that flow (``expand_views``) cannot reach (table
+        ``[reconstruct.views]``; :mod:`pointtraj.reconstruct.views`).
+    stitch : StitchConfig
+        Joining a trajectory that ended to one born where it would have gone, across gaps of
+        a frame or two (table ``[reconstruct.stitch]``; :mod:`pointtraj.reconstruct.stitch`).
+    survive : SurviveConfig
+        A point that drops to one view goes on for a few frames, carried by its neighbours'
+        rigid motion where its remaining view agrees (table ``[reconstruct.survive]``;
+        :mod:`pointtraj.reconstruct.survive`).
+    """
+
+    sigma_px: float = 1.0
+    visibility_threshold: float = 0.05
+    ransac_threshold_px: float = 2.0
+    ransac_iterations: int = 50
+    max_mean_error_px: float = 2.0
+    min_views: int = 2
+    min_views_new: int = 2
+    lk_window: int = 21
+    lk_levels: int = 3
+    lk_start: Literal["projection", "observation"] = "projection"
+    fb_max_px: float = 1.0
+    cover_px: float = 3.0
+    cover_views: int = 2
+    occlusion_depth_m: float = 0.05
+    occlusion_sigmas: float = 3.0
+    occlusion_min_m: float = 0.01
+    occlusion_cell_px: float = 8.0
+    max_angle_deg: float = 90.0
+    max_pairs_per_camera: int = 12
+    match_every: int = 1
+    expand_views: bool = False
+    expand_max_angle_deg: float = 40.0
+    expand_px: float = 2.0
+    seed: int = 0
+    matching: MatchingConfig = field(default_factory=MatchingConfig)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    views: ViewsConfig = field(default_factory=ViewsConfig)
+    stitch: StitchConfig = field(default_factory=StitchConfig)
+    survive: SurviveConfig = field(default_factory=SurviveConfig)
+
+    def __post_init__(self) -> None:
+        checks = {
+            "sigma_px": self.sigma_px > 0,
+            "visibility_threshold": 0 <= self.visibility_threshold < 1,
+            "ransac_threshold_px": self.ransac_threshold_px > 0,
+            "ransac_iterations": self.ransac_iterations >= 1,
+            "max_mean_error_px": self.max_mean_error_px > 0,
+            "min_views": self.min_views >= 2,
+            "min_views_new": self.min_views_new >= self.min_views,
+            "lk_window": self.lk_window >= 5,
+            "lk_levels": self.lk_levels >= 0,
+            "fb_max_px": self.fb_max_px > 0,
+            "cover_px": self.cover_px >= 0,
+            "cover_views": self.cover_views >= 1,
+            "occlusion_depth_m": self.occlusion_depth_m >= 0,
+            "occlusion_sigmas": self.occlusion_sigmas >= 0,
+            "occlusion_min_m": 0 <= self.occlusion_min_m <= max(self.occlusion_depth_m, 0),
+            "occlusion_cell_px": self.occlusion_cell_px > 0,
+            "max_angle_deg": 0 < self.max_angle_deg <= 180,
+            "max_pairs_per_camera": self.max_pairs_per_camera >= 0,
+            "match_every": self.match_every >= 1,
+            "expand_max_angle_deg": 0 < self.expand_max_angle_deg <= 180,
+            "expand_px": self.expand_px > 0,
+        }
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise ValidationError(
+                f"ReconstructConfig.{bad[0]} out of range: {getattr(self, bad[0])!r}"
+            )
+        if self.lk_start not in ("projection", "observation"):
+            raise ValidationError(
+                f"ReconstructConfig.lk_start must be 'projection' or 'observation', "
+                f"got {self.lk_start!r}"
+            )
+        if not isinstance(self.matching, MatchingConfig):
+            raise ValidationError("ReconstructConfig.matching must be a MatchingConfig")
+        if not isinstance(self.densify, DensifyConfig):
+            raise ValidationError("ReconstructConfig.densify must be a DensifyConfig")
+        if not isinstance(self.views, ViewsConfig):
+            raise ValidationError("ReconstructConfig.views must be a ViewsConfig")
+        if not isinstance(self.stitch, StitchConfig):
+            raise ValidationError("ReconstructConfig.stitch must be a StitchConfig")
+        if not isinstance(self.survive, SurviveConfig):
+            raise ValidationError("ReconstructConfig.survive must be a SurviveConfig")
+
+    def triangulation(self) -> TriangulationConfig:
+        """The matching :class:`TriangulationConfig`."""
+        from .triangulate import TriangulationConfig
+
+        return TriangulationConfig(
+            threshold_px=self.ransac_threshold_px,
+            sigma_px=self.sigma_px,
+            iterations=self.ransac_iterations,
+            min_views=self.min_views,
+            seed=self.seed,
+        )

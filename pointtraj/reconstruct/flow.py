@@ -1,0 +1,219 @@
+"""Pyramidal Lucas-Kanade optical flow (paper Section 5, step 2).
+
+Batched flow of many points with a forward-backward check (:func:`track_flow`), and view
+expansion by flow from an observing camera to the cameras that should see a point
+(:func:`expand_views`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..camera import CameraRig
+from ..errors import check_array
+from ..geometry import axis_angles
+
+__all__ = ["track_flow", "expand_views", "to_grey"]
+
+logger = logging.getLogger(__name__)
+
+
+def _flow_fb(
+    img0: np.ndarray,
+    img1: np.ndarray,
+    p0: np.ndarray,
+    lk: dict,
+    fb_max_px: float,
+    guess: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lucas-Kanade flow ``img0`` -> ``img1`` and back, with the forward-backward check.
+
+    Parameters
+    ----------
+    img0, img1 : (H, W) uint8 ndarray
+    p0 : (K, 2) float ndarray
+        Positions in ``img0``.
+    lk : dict
+        ``calcOpticalFlowPyrLK`` keyword arguments (window, levels, criteria).
+    fb_max_px : float
+        Maximum forward-backward error.
+    guess : (K, 2) float ndarray, optional
+        Start of the forward flow in ``img1`` (the backward flow then starts at ``p0``);
+        default: both start where they come from.
+
+    Returns
+    -------
+    p1 : (K, 2) float32 ndarray
+        Positions in ``img1``.
+    good : (K,) bool ndarray
+        Converged both ways, back within ``fb_max_px`` and inside ``img1``.
+    """
+    import cv2
+
+    a = np.ascontiguousarray(p0, dtype=np.float32).reshape(-1, 1, 2)
+    fwd, back = None, None
+    if guess is not None:
+        lk = {**lk, "flags": cv2.OPTFLOW_USE_INITIAL_FLOW}
+        fwd = np.ascontiguousarray(guess, dtype=np.float32).reshape(-1, 1, 2)
+        back = a.copy()
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, a, fwd, **lk)
+    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, back, **lk)
+    p1 = p1.reshape(-1, 2)
+    fb = np.linalg.norm(p0b.reshape(-1, 2) - a.reshape(-1, 2), axis=1)
+    h, w = img1.shape[:2]
+    good = (
+        (st1.ravel() == 1)
+        & (st2.ravel() == 1)
+        & (fb <= fb_max_px)
+        & (p1[:, 0] >= -0.5)
+        & (p1[:, 0] < w - 0.5)
+        & (p1[:, 1] >= -0.5)
+        & (p1[:, 1] < h - 0.5)
+    )
+    return p1, good
+
+
+def track_flow(
+    prev_grey: np.ndarray,
+    grey: np.ndarray,
+    points: np.ndarray,
+    *,
+    window: int = 21,
+    levels: int = 3,
+    fb_max_px: float = 1.0,
+) -> np.ndarray:
+    """Pyramidal Lucas-Kanade flow of many points at once, with a forward-backward check.
+
+    Parameters
+    ----------
+    prev_grey, grey : (H, W) uint8 ndarray
+        Consecutive grey images of one camera.
+    points : (K, 2) float ndarray
+        Pixel positions in ``prev_grey``; NaN rows are skipped.
+    window, levels : int
+        Lucas-Kanade window size and pyramid levels.
+    fb_max_px : float
+        Maximum forward-backward error.
+
+    Returns
+    -------
+    (K, 2) float32 ndarray
+        Positions in ``grey``; NaN where the flow failed, left the image or the
+        forward-backward error exceeds ``fb_max_px``.
+    """
+    import cv2
+
+    p = check_array("points", points, (None, 2))
+    out = np.full(p.shape, np.nan, np.float32)
+    idx = np.flatnonzero(np.all(np.isfinite(p), axis=1))
+    if idx.size == 0:
+        return out
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
+    lk = {"winSize": (window, window), "maxLevel": levels, "criteria": crit}
+    p1, good = _flow_fb(prev_grey, grey, p[idx], lk, fb_max_px)
+    out[idx[good]] = p1[good]
+    return out
+
+
+def expand_views(
+    rig: CameraRig,
+    grey: Sequence[np.ndarray],
+    points: np.ndarray,
+    pixels: np.ndarray,
+    candidates: np.ndarray,
+    *,
+    max_angle_deg: float = 40.0,
+    max_px: float = 2.0,
+    window: int = 21,
+    levels: int = 1,
+    fb_max_px: float = 1.0,
+    projection=None,
+) -> np.ndarray:
+    """Find points in more cameras by flow from an observing camera (view expansion).
+
+    For each candidate (camera c, point n), the observing camera r of n whose optical axis is
+    nearest c's gives the patch: Lucas-Kanade flow from ``pixels[r, n]`` in image r to image c,
+    started at the point's projection into c, then back (forward-backward check). The view is
+    accepted where the flow converges, comes back within ``fb_max_px`` and ends within
+    ``max_px`` of the projection. One flow call per (r, c) camera pair.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    grey : list of C (H, W) uint8 ndarrays
+        The frame's grey images.
+    points : (N, 3) float ndarray
+    pixels : (C, N, 2) float ndarray
+        The observations so far (NaN where a camera does not observe the point).
+    candidates : (C, N) bool ndarray
+        Where to search (e.g. in the image, not occluded, not observed).
+    max_angle_deg : float
+        Largest angle between the optical axes of r and c.
+    max_px, window, levels, fb_max_px
+        Acceptance distance to the projection, flow window, pyramid levels and the
+        forward-backward tolerance.
+    projection : Projection, optional
+        ``rig.project(points)`` when the caller has it.
+
+    Returns
+    -------
+    (C, N, 2) float64 ndarray
+        ``pixels`` with the accepted new observations filled in.
+    """
+    import cv2
+
+    C = len(rig)
+    pix = check_array("pixels", pixels, (C, None, 2)).astype(np.float64)
+    N = pix.shape[1]
+    cand = check_array("candidates", candidates, (C, N), dtype=bool)
+    out = pix.copy()
+    observed = np.all(np.isfinite(pix), axis=2)  # (C, N)
+    cand = cand & ~observed & observed.any(axis=0)[None, :]
+    if not cand.any():
+        return out
+    proj = rig.project(points) if projection is None else projection
+    angle = axis_angles(rig)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+    lk = {"winSize": (window, window), "maxLevel": levels, "criteria": crit}
+    for c in np.flatnonzero(cand.any(axis=1)):
+        n_c = np.flatnonzero(cand[c])
+        # nearest observing camera (by optical axis) of each candidate point
+        ang = np.where(observed[:, n_c], angle[c][:, None], np.inf)  # (C, n)
+        ref = np.argmin(ang, axis=0)
+        ok = ang[ref, np.arange(n_c.size)] <= max_angle_deg
+        n_c, ref = n_c[ok], ref[ok]
+        for r in np.unique(ref):
+            n = n_c[ref == r]
+            guess = proj.pixels[c, n]
+            p1, good = _flow_fb(grey[r], grey[c], pix[r, n], lk, fb_max_px, guess=guess)
+            good &= np.linalg.norm(p1 - guess, axis=1) <= max_px
+            out[c, n[good]] = p1[good]
+    logger.debug(
+        "view expansion: %d of %d candidate views accepted",
+        int(np.all(np.isfinite(out), axis=2).sum() - observed.sum()),
+        int(cand.sum()),
+    )
+    return out
+
+
+def to_grey(image: np.ndarray) -> np.ndarray:
+    """The grey image of an RGB image (a grey image is returned as is).
+
+    Parameters
+    ----------
+    image : (H, W, 3) RGB or (H, W) uint8 ndarray
+
+    Returns
+    -------
+    (H, W) uint8 ndarray
+    """
+    import cv2
+
+    img = np.asarray(image)
+    if img.ndim == 2:
+        return img
+    return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)

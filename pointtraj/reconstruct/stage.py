@@ -1,0 +1,269 @@
+"""The reconstruction stage driver and its work-folder files.
+
+:func:`reconstruct_capture` streams a capture frame by frame through the :class:`~.track.Tracker`
+into a work folder, writing each frame's point cloud and tracker state atomically so that an
+interrupted run resumes from the last complete frame, and assembles the ragged
+:class:`~pointtraj.trajectories.Trajectories` store (:func:`assemble_trajectories`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import save_npz_atomic
+from ..errors import FileFormatError, ValidationError
+from ..npzfile import load_npz
+from ..trajectories import Trajectories, frame_pointcloud, write_cloud_ply
+from .config import ReconstructConfig
+from .stitch import stitch_trajectories
+from .track import FrameRecord, Tracker, TrackState
+
+__all__ = [
+    "assemble_trajectories",
+    "reconstruct_capture",
+]
+
+logger = logging.getLogger(__name__)
+
+STATE_FORMAT_VERSION = 1
+
+
+# -- assembling the store ---------------------------------------------------------------------
+
+
+def assemble_trajectories(
+    records: Sequence[FrameRecord], camera_names: list[str], fps: float, num_frames: int
+) -> Trajectories:
+    """Build the ragged store from per-frame records (one stable sort by trajectory id).
+
+    Parameters
+    ----------
+    records : list of FrameRecord
+        In frame order; a trajectory's frames must be consecutive.
+    camera_names : list of str
+    fps : float
+    num_frames : int
+
+    Returns
+    -------
+    Trajectories
+        Trajectory m is the one with id m; ids must be ``0 .. M-1``.
+    """
+    C = len(camera_names)
+    if not records:
+        return Trajectories(
+            np.zeros(0, np.int64),
+            np.zeros(1, np.int64),
+            np.zeros((0, 3), np.float32),
+            np.zeros((0, C), np.uint8),
+            np.zeros(0, np.float32),
+            np.zeros((0, 3), np.uint8),
+            camera_names=list(camera_names),
+            fps=fps,
+            num_frames=num_frames,
+        )
+    ids = np.concatenate([r.ids for r in records])  # (P,)
+    frames = np.concatenate([np.full(len(r), r.frame, np.int64) for r in records])
+    order = np.lexsort((frames, ids))  # by id, then frame
+    ids_s = ids[order]
+    M = int(ids_s[-1]) + 1 if ids_s.size else 0
+    counts = np.bincount(ids_s, minlength=M)
+    if np.any(counts == 0):
+        raise ValidationError("assemble_trajectories: trajectory ids are not 0 .. M-1")
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    first = frames[order][offsets[:-1]]
+    span = frames[order][offsets[1:] - 1] - first + 1
+    if np.any(span != counts):
+        raise ValidationError("assemble_trajectories: a trajectory skips a frame")
+    return Trajectories(
+        first_frame=first,
+        offsets=offsets,
+        xyz=np.concatenate([r.xyz for r in records])[order],
+        visibility=np.concatenate([r.visibility for r in records])[order],
+        reprojection_error=np.concatenate([r.error for r in records])[order],
+        color=np.concatenate([r.color for r in records])[order],
+        camera_names=list(camera_names),
+        fps=fps,
+        num_frames=num_frames,
+    )
+
+
+# -- work folder streaming --------------------------------------------------------------------
+
+
+def _state_path(work: Path, t: int) -> Path:
+    return work / "state" / f"{t:06d}.npz"
+
+
+def _save_state(path: Path, record: FrameRecord, state: TrackState) -> None:
+    save_npz_atomic(
+        path,
+        format_version=np.int64(STATE_FORMAT_VERSION),
+        frame=np.int64(record.frame),
+        rec_ids=record.ids,
+        rec_xyz=record.xyz,
+        rec_visibility=record.visibility,
+        rec_error=record.error,
+        rec_color=record.color,
+        rec_num_new=np.int64(record.num_new),
+        live_ids=state.ids,
+        live_xyz=state.xyz,
+        live_visibility=state.visibility,
+        live_pixels=state.pixels,
+        live_lone=state.lone,
+        next_id=np.int64(state.next_id),
+    )
+
+
+_STATE_KEYS = (
+    "frame",
+    "rec_ids",
+    "rec_xyz",
+    "rec_visibility",
+    "rec_error",
+    "rec_color",
+    "rec_num_new",
+    "live_ids",
+    "live_xyz",
+    "live_visibility",
+    "live_pixels",
+    "next_id",
+)
+
+
+def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
+    d = load_npz(path, _STATE_KEYS, "a tracker state")
+    try:
+        t = int(d["frame"])
+        rec = FrameRecord(
+            t,
+            d["rec_ids"],
+            d["rec_xyz"],
+            d["rec_visibility"],
+            d["rec_error"],
+            d["rec_color"],
+            int(d["rec_num_new"]),
+        )
+        st = TrackState(
+            t,
+            d["live_ids"],
+            d["live_xyz"],
+            d["live_visibility"],
+            d["live_pixels"],
+            int(d["next_id"]),
+            d.get("live_lone"),  # absent in the states of older versions
+        )
+    except (ValueError, TypeError) as exc:
+        raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
+    if st.visibility.shape[1:] != (num_cameras,) or rec.visibility.shape[1:] != (num_cameras,):
+        raise FileFormatError(path, f"tracker state is not for {num_cameras} cameras")
+    return rec, st
+
+
+def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
+    """Write one frame's points as a PLY (:func:`~pointtraj.trajectories.frame_pointcloud`'s
+    attributes, ``track_id`` as int32).
+
+    Parameters
+    ----------
+    path : path-like
+    record : FrameRecord
+    """
+    write_cloud_ply(path, frame_pointcloud(record.xyz, record.color, record.visibility, record.ids))
+
+
+def reconstruct_capture(
+    capture,
+    work: str | os.PathLike,
+    frames: range | None = None,
+    config: ReconstructConfig | None = None,
+    *,
+    on_frame: Callable[[FrameRecord], None] | None = None,
+) -> Trajectories:
+    """Reconstruct trajectories of a capture into a work folder, resuming where it stopped.
+
+    Writes ``clouds/<t:06d>.ply`` and ``state/<t:06d>.npz`` per frame (the state file last, so
+    that it marks the frame complete), then ``trajectories.npz``. Frames whose state file
+    exists (contiguously from ``frames.start``) are not recomputed.
+
+    Parameters
+    ----------
+    capture : pointtraj.session.Capture
+        With ``rig``, ``camera_names``, ``num_frames``, ``fps`` and ``read(camera, frame)``.
+    work : path-like
+        The work folder.
+    frames : range, optional
+        Frames to process (step 1), default all.
+    config : ReconstructConfig, optional
+    on_frame : callable, optional
+        Called with each frame's record (also for resumed frames), e.g. to advance a progress
+        bar.
+
+    Returns
+    -------
+    Trajectories
+    """
+    cfg = config or ReconstructConfig()
+    work = Path(work)
+    rig = capture.rig
+    names = list(rig.names)
+    if len(names) < 2:
+        raise FileFormatError(
+            getattr(capture, "path", work),
+            f"reconstruction needs at least 2 cameras; the capture has {len(names)} "
+            f"({', '.join(names)})",
+        )
+    T = int(capture.num_frames)
+    frames = range(T) if frames is None else frames
+    if frames.step != 1 or len(frames) == 0 or frames.start < 0 or frames.stop > T:
+        raise ValidationError(
+            f"frames {frames.start}:{frames.stop} must be a non-empty range within [0, {T})"
+        )
+    records: list[FrameRecord] = []
+    state = None
+    for t in frames:  # resume: contiguous complete frames
+        path = _state_path(work, t)
+        if not path.is_file():
+            break
+        rec, state = _load_state(path, len(rig))
+        records.append(rec)
+        if on_frame is not None:
+            on_frame(rec)
+    if records:
+        logger.info("resuming after frame %d (%d frames done)", records[-1].frame, len(records))
+    tracker = Tracker(rig, cfg, state=state, first_frame=frames.start)
+    if state is not None and len(records) < len(frames):
+        tracker.set_previous_images([capture.read(n, state.frame) for n in names])
+    for t in frames[len(records) :]:
+        images = [capture.read(n, t) for n in names]
+        rec = tracker.step(t, images)
+        if len(rec.ids) == 0:
+            logger.warning(
+                "frame %d: no point reconstructed (black or featureless images?); "
+                "writing an empty cloud and going on",
+                t,
+            )
+        write_frame_cloud(work / "clouds" / f"{t:06d}.ply", rec)
+        _save_state(_state_path(work, t), rec, tracker.state)
+        records.append(rec)
+        if on_frame is not None:
+            on_frame(rec)
+    ended = sum(tracker.stops.values())
+    if ended:
+        logger.info(
+            "%d trajectories ended in the frames reconstructed now: %s",
+            ended,
+            ", ".join(f"{k} {100 * v / ended:.1f} %" for k, v in tracker.stops.items()),
+        )
+    traj = assemble_trajectories(records, names, float(capture.fps), T)
+    stitched, new_id = stitch_trajectories(traj, cfg.stitch)
+    if stitched is not traj:  # the clouds carry the stitched trajectories' ids
+        for t in frames:
+            stitched.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
+    stitched.save(work / "trajectories.npz")
+    return stitched
