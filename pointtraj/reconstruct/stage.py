@@ -21,6 +21,7 @@ from ..npzfile import load_npz
 from ..trajectories import Trajectories, frame_pointcloud, write_cloud_ply
 from .config import ReconstructConfig
 from .stitch import stitch_trajectories
+from .survive import trim_one_view_tails
 from .track import FrameRecord, Tracker, TrackState
 
 __all__ = [
@@ -262,8 +263,14 @@ def reconstruct_capture(
         )
     traj = assemble_trajectories(records, names, float(capture.fps), T)
     stitched, new_id = stitch_trajectories(traj, cfg.stitch)
-    if stitched is not traj:  # the clouds carry the stitched trajectories' ids
+    final, dropped = trim_one_view_tails(stitched, cfg.visibility_threshold, cfg.min_views)
+    if dropped:
+        logger.info(
+            "%d one-view point-frames at trajectories' ends dropped (no second view returned)",
+            dropped,
+        )
+    if final is not traj:  # the clouds carry the stitched trajectories' ids and rows
         for t in frames:
-            stitched.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
-    stitched.save(work / "trajectories.npz")
-    return stitched
+            final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
+    final.save(work / "trajectories.npz")
+    return final
