@@ -389,12 +389,15 @@ def _ncc(
     rays: np.ndarray,
     z: np.ndarray,
     ref: np.ndarray,
+    shifts: np.ndarray | None = None,
 ) -> np.ndarray:
     """NCC of reference patches with their warps into another camera, per depth hypothesis.
 
     A patch sample on ray ``x`` of the reference camera at depth ``z`` projects into the other
     camera's undistorted image at ``z * (K' R_rs x) + K' t_rs`` (homogeneous): a plane homography
-    per depth, applied to all samples at once.
+    per depth, applied to all samples at once. With ``shifts``, each warped patch is also
+    compared shifted by each of them in the other image (a calibration error moves a point
+    off its epipolar line) and the best shift's score is kept.
 
     Parameters
     ----------
@@ -408,12 +411,35 @@ def _ncc(
         Depth hypotheses along the reference camera's optical axis.
     ref : (n, P) float ndarray
         The reference patches from :func:`_zscore`.
+    shifts : (n, S, 2) float ndarray, optional
+        Pixel offsets in the other image tried at every depth.
 
     Returns
     -------
-    (n, D) float ndarray
+    scores : (n, D) float ndarray
         NCC in [-1, 1]; -1 where the warped patch leaves the image or is flat.
+    best_shift : (n, D) int ndarray
+        Only with ``shifts``: the index of the best shift at each depth.
     """
+    if shifts is not None:
+        S = shifts.shape[1]
+        per = [_ncc_shifted(image, other, cam, rays, z, ref, shifts[:, j]) for j in range(S)]
+        stack = np.stack(per, axis=2)  # (n, D, S)
+        best = np.argmax(stack, axis=2)
+        return np.take_along_axis(stack, best[..., None], axis=2)[..., 0], best
+    return _ncc_shifted(image, other, cam, rays, z, ref, None)
+
+
+def _ncc_shifted(
+    image: np.ndarray,
+    other,
+    cam,
+    rays: np.ndarray,
+    z: np.ndarray,
+    ref: np.ndarray,
+    offset: np.ndarray | None,
+) -> np.ndarray:
+    """:func:`_ncc` with one pixel ``offset`` (n, 2) per patch (or none)."""
     n, D = z.shape
     P = ref.shape[1]
     R_rs = other.R @ cam.R.T
@@ -429,6 +455,9 @@ def _ncc(
             w = np.where(w > 1e-6, w, np.nan)
             u = (zz * B[:, None, :, 0] + k[0]) / w
             v = (zz * B[:, None, :, 1] + k[1]) / w
+        if offset is not None:
+            u = u + offset[a : a + rows, None, None, 0].astype(np.float32)
+            v = v + offset[a : a + rows, None, None, 1].astype(np.float32)
         cmp, _ = _zscore(_sample(image, u, v))  # (m, D, P)
         ncc = np.einsum("mdp,mp->md", cmp, ref[a : a + rows].astype(np.float32)) / P
         scores[a : a + rows] = np.where(np.isfinite(ncc), ncc, -1.0)

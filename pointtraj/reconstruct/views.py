@@ -84,6 +84,12 @@ class ViewsConfig:
         The swept plane's normal: fitted to the point's neighbours, or the bisector of the
         directions to the reference and the searched camera (with the cameras observing the
         point deciding which cameras face it).
+    search_sigmas : float
+        Calibration error moves a point off its epipolar line: the warped patch is also tried
+        shifted across the line, within this many ``sigma_px`` (the tracker's image tolerance)
+        on each side, in steps of ``max(sigma_px / 2, patch_spacing_px)``; only where that reaches
+        beyond the patch spacing (``sigma_px`` above 1: rigs calibrated to a few pixels, such
+        as the Pose2Sim demo at 6).
     confirm_new : bool
         A new point left with two views is dropped when another camera was searched for it
         with a usable patch and did not confirm it (two views always agree with a wrong match
@@ -104,6 +110,7 @@ class ViewsConfig:
     max_incidence_deg: float = 80.0
     normal_neighbors: int = 12
     retry_every: int = 0
+    search_sigmas: float = 2.0
     confirm_new: bool = True
     normal: str = "neighbors"
 
@@ -122,6 +129,7 @@ class ViewsConfig:
             "max_incidence_deg": 0 < self.max_incidence_deg <= 90,
             "normal_neighbors": self.normal_neighbors >= 3,
             "retry_every": self.retry_every >= 0,
+            "search_sigmas": self.search_sigmas >= 0,
             "normal": self.normal in ("neighbors", "bisector"),
         }
         bad = [k for k, ok in checks.items() if not ok]
@@ -301,6 +309,7 @@ def discover_views(
     off = (np.arange(cfg.patch_size) - h) * cfg.patch_spacing_px
     offsets = np.stack(np.meshgrid(off, off), axis=-1).reshape(-1, 2)  # (P, 2)
     steps = np.linspace(-1.0, 1.0, cfg.depth_steps)  # (D,) in units of the half-range
+    across = _across_offsets(cfg, sigma_px)  # (S,) pixels across the epipolar line
     found = 0
     # Two passes, so that each camera's prepared image is needed in one stretch (the prepared
     # images are kept within a memory budget): reference patches camera by camera, then the
@@ -321,7 +330,7 @@ def discover_views(
     for group in np.split(order, np.flatnonzero(np.diff(pair[order])) + 1):
         c, r = int(cs[group[0]]), int(rs[group[0]])
         n = ns[group]
-        ok, usable, Xb = _sweep(
+        ok, usable, Xb, shift = _sweep(
             rig,
             images[c],
             r,
@@ -335,16 +344,28 @@ def discover_views(
             ref[group],
             textured[group],
             cfg,
+            across,
         )
         searched[c, n] = usable
         if ok.any():
             p = rig.project(Xb[ok])
             inside = p.in_image[c]
             sel = n[ok][inside]
-            out[c, sel] = p.pixels[c][inside]
+            out[c, sel] = p.pixels[c][inside] + shift[ok][inside]
             found += sel.size
     logger.debug("view discovery: %d of %d candidate views found", found, len(cs))
     return out, searched
+
+
+def _across_offsets(cfg: ViewsConfig, sigma_px: float) -> np.ndarray:
+    """(S,) offsets (pixels) across the epipolar line tried by the sweep (only 0 where the
+    search does not reach beyond the patch spacing)."""
+    half = cfg.search_sigmas * sigma_px
+    step = max(sigma_px / 2, cfg.patch_spacing_px)
+    if half <= cfg.patch_spacing_px:
+        return np.zeros(1)
+    k = int(np.floor(half / step + 1e-9))
+    return np.arange(-k, k + 1) * step
 
 
 def _plane_normals(
@@ -372,10 +393,12 @@ def _sweep(
     ref: np.ndarray,
     textured: np.ndarray,
     cfg: ViewsConfig,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    across: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sweep points seen in reference camera r for camera c (its prepared ``image``).
 
-    ``ref`` (n, P) are the z-scored reference patches, ``textured`` (n,) those usable.
+    ``ref`` (n, P) are the z-scored reference patches, ``textured`` (n,) those usable;
+    ``across`` (S,) the offsets (pixels) across the epipolar line tried at every depth.
 
     Returns
     -------
@@ -384,12 +407,15 @@ def _sweep(
         Whose patch could be compared (textured, plane not grazing in r).
     best : (n, 3) float ndarray
         The points at their best depth along r's rays through their observations.
+    shift : (n, 2) float ndarray
+        Where c sees them relative to the best point's projection (pixels, across the
+        epipolar line; 0 without ``across``).
     """
     cam = rig[r]
     n = len(X)
     patch = ideal_r[:, None, :] + offsets[None]  # (n, P, 2)
     usable = textured.copy()
-    none = (np.zeros(n, bool), np.zeros(n, bool), np.zeros((n, 3)))
+    none = (np.zeros(n, bool), np.zeros(n, bool), np.zeros((n, 3)), np.zeros((n, 2)))
     if not usable.any():
         return none
     rays = _rays(cam, patch)  # (n, P, 3), camera frame, z = 1
@@ -407,7 +433,13 @@ def _sweep(
     z = z0[:, None] + half[:, None] * steps[None, :]  # (n, D)
     u = np.flatnonzero(usable)
     scores = np.full((n, len(steps)), -1.0)
-    scores[u] = _ncc(image, rig[c], cam, rays[u] * w[u, :, None], z[u], ref[u])
+    shift = np.zeros((n, 2))
+    if len(across) > 1:
+        normal = _epipolar_normals(rig[c], cam, X[u], half[u])  # (m, 2)
+        shifts = across[None, :, None] * normal[:, None, :]  # (m, S, 2)
+        scores[u], which = _ncc(image, rig[c], cam, rays[u] * w[u, :, None], z[u], ref[u], shifts)
+    else:
+        scores[u] = _ncc(image, rig[c], cam, rays[u] * w[u, :, None], z[u], ref[u])
     D = len(steps)
     best = np.argmax(scores, axis=1)
     top = scores[np.arange(n), best]
@@ -422,4 +454,19 @@ def _sweep(
     delta = np.where(np.isfinite(delta), delta, 0.0)
     z_best = z[np.arange(n), b] + delta * half * (steps[1] - steps[0])
     Xb = cam.C + (z_best[:, None] * centre_ray) @ cam.R  # (n, 3) world
-    return accept, usable, Xb
+    if len(across) > 1:
+        j = which[np.arange(len(u)), best[u]]
+        shift[u] = shifts[np.arange(len(u)), j]
+    return accept, usable, Xb, shift
+
+
+def _epipolar_normals(other, cam, X: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """(n, 2) unit image directions in ``other`` across the epipolar lines of the points X
+    (n, 3) seen by ``cam``: perpendicular to the image of each point's ray segment of +-half."""
+    d = X - cam.C
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    ends = [X - half[:, None] * d, X + half[:, None] * d]
+    pix = [other.project(e)[0] for e in ends]  # (n, 2) each
+    along = pix[1] - pix[0]
+    along = along / np.maximum(np.linalg.norm(along, axis=1, keepdims=True), 1e-12)
+    return np.stack([-along[:, 1], along[:, 0]], axis=1)
