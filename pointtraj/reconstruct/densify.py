@@ -390,7 +390,7 @@ def _ncc(
     z: np.ndarray,
     ref: np.ndarray,
     shifts: np.ndarray | None = None,
-) -> np.ndarray:
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """NCC of reference patches with their warps into another camera, per depth hypothesis.
 
     A patch sample on ray ``x`` of the reference camera at depth ``z`` projects into the other
