@@ -271,6 +271,18 @@ def reconstruct_capture(
         )
     if final is not traj:  # the clouds carry the stitched trajectories' ids and rows
         for t in frames:
-            final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
+            if _frame_changed(traj, final, t):
+                final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
     final.save(work / "trajectories.npz")
     return final
+
+
+def _frame_changed(before: Trajectories, after: Trajectories, t: int) -> bool:
+    """Whether frame t's point-frames differ between two stores (ids, rows or positions)."""
+    a, b = before.frame_rows(t), after.frame_rows(t)
+    if len(a) != len(b):
+        return True
+    return not (
+        np.array_equal(before.row_track[a], after.row_track[b])
+        and np.array_equal(before.xyz[a], after.xyz[b], equal_nan=True)
+    )
