@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -445,6 +446,35 @@ class Trajectories:
         )
 
     # -- construction ------------------------------------------------------------------------
+    @classmethod
+    def empty(
+        cls, camera_names: Sequence[str], fps: float = 30.0, num_frames: int = 0
+    ) -> Trajectories:
+        """A store of no trajectories, seen by the cameras ``camera_names``.
+
+        Parameters
+        ----------
+        camera_names : sequence of str
+        fps : float
+        num_frames : int
+
+        Returns
+        -------
+        Trajectories
+            M = P = 0, with arrays of the documented dtypes and ``(0, C)`` visibility.
+        """
+        return cls(
+            np.zeros(0, np.int64),
+            np.zeros(1, np.int64),
+            np.zeros((0, 3), np.float32),
+            np.zeros((0, len(camera_names)), np.uint8),
+            np.zeros(0, np.float32),
+            np.zeros((0, 3), np.uint8),
+            camera_names=list(camera_names),
+            fps=fps,
+            num_frames=num_frames,
+        )
+
     @classmethod
     def from_dense(
         cls,

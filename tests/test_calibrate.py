@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from helpers.rigs import ring_rig
 
 from pointtraj.calibrate import (
     Calibration,
@@ -34,18 +35,13 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 CALISCOPE = SHARED / "data" / "caliscope_board_4cam"
 
 
-def ring(n: int, radius: float = 2.0, size=(640, 480), focal=500.0) -> CameraRig:
-    return CameraRig(
-        [
-            Camera.look_at(
-                f"c{i}",
-                [radius * np.cos(a), radius * np.sin(a), 1.0 + 0.3 * (i % 2)],
-                [0, 0, 0.8],
-                size,
-                focal,
-            )
-            for i, a in enumerate(np.linspace(0, 2 * np.pi, n, endpoint=False))
-        ]
+def ring(n: int, radius: float = 2.0) -> CameraRig:
+    """``n`` 640x480 cameras (f = 500 px) at heights 1.0 and 1.3 m looking at (0, 0, 0.8)."""
+    return ring_rig(
+        radius=radius,
+        heights=(1.0, 1.3),
+        target=(0, 0, 0.8),
+        angles=np.linspace(0, 2 * np.pi, n, endpoint=False),
     )
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import TINY
+from helpers.pipelines import TINY
 
 from pointtraj.cli import main
 from pointtraj.errors import FileFormatError, ValidationError

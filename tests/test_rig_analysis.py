@@ -2,24 +2,20 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
+from helpers.rigs import ring_rig
 
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.errors import ValidationError
 from pointtraj.rig_analysis import CaptureVolume, analyze_rig, plot_coverage
 
-
-def ring(n: int, size=(320, 256), focal=300.0, radius=2.0) -> CameraRig:
-    cams = []
-    for i in range(n):
-        a = 2 * np.pi * i / n
-        cams.append(
-            Camera.look_at(
-                f"c{i}", [radius * np.cos(a), radius * np.sin(a), 1.2], [0, 0, 1.2], size, focal
-            )
-        )
-    return CameraRig(cams)
+#: ``n`` cameras (320x256, f = 300 px by default) on a ring of radius 2 m at height 1.2 m.
+ring = functools.partial(
+    ring_rig, radius=2.0, size=(320, 256), focal=300.0, heights=(1.2,), target=(0, 0, 1.2)
+)
 
 
 def test_counts_match_per_camera_projection():

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.rigs import ring_rig
 
-from pointtraj.camera import Camera, CameraRig
+from pointtraj.camera import CameraRig
 from pointtraj.errors import FileFormatError, ValidationError
 from pointtraj.rigio import load_caliscope, save_rig_toml
 from pointtraj.session import Capture
@@ -20,12 +21,8 @@ W, H = 64, 48
 
 
 def small_rig(names=("left", "right")) -> CameraRig:
-    return CameraRig(
-        [
-            Camera.look_at(n, [2.0 * np.cos(i), 2.0 * np.sin(i), 1.0], [0, 0, 1.0], (W, H), 60.0)
-            for i, n in enumerate(names)
-        ]
-    )
+    """One WxH camera (f = 60 px) per name, camera i at angle i radians, 2 m from the z axis."""
+    return ring_rig(names=names, angles=range(len(names)), radius=2.0, size=(W, H), focal=60.0)
 
 
 def frame_image(camera: int, t: int) -> np.ndarray:

@@ -48,6 +48,19 @@ def test_from_dense_round_trip(store):
     )
 
 
+def test_empty_store(tmp_path):
+    tr = Trajectories.empty(("a", "b"), fps=25.0, num_frames=4)
+    assert tr.num_trajectories == 0 and tr.num_point_frames == 0 and tr.num_cameras == 2
+    assert tr.camera_names == ["a", "b"] and tr.fps == 25.0 and tr.num_frames == 4
+    assert tr.visibility.shape == (0, 2) and tr.visibility.dtype == np.uint8
+    assert tr.xyz.dtype == np.float32 and tr.color.dtype == np.uint8
+    np.testing.assert_array_equal(tr.offsets, [0])
+    assert len(tr.frame(3).track_id) == 0
+    tr.save(tmp_path / "empty.npz")
+    back = Trajectories.load(tmp_path / "empty.npz")
+    assert back.num_trajectories == 0 and back.camera_names == ["a", "b"] and back.num_frames == 4
+
+
 def test_frame_index(store):
     tr, xyz, vis, alive = store
     for t in range(tr.num_frames):

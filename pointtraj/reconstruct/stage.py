@@ -55,19 +55,8 @@ def assemble_trajectories(
     Trajectories
         Trajectory m is the one with id m; ids must be ``0 .. M-1``.
     """
-    C = len(camera_names)
     if not records:
-        return Trajectories(
-            np.zeros(0, np.int64),
-            np.zeros(1, np.int64),
-            np.zeros((0, 3), np.float32),
-            np.zeros((0, C), np.uint8),
-            np.zeros(0, np.float32),
-            np.zeros((0, 3), np.uint8),
-            camera_names=list(camera_names),
-            fps=fps,
-            num_frames=num_frames,
-        )
+        return Trajectories.empty(camera_names, fps, num_frames)
     ids = np.concatenate([r.ids for r in records])  # (P,)
     frames = np.concatenate([np.full(len(r), r.frame, np.int64) for r in records])
     order = np.lexsort((frames, ids))  # by id, then frame

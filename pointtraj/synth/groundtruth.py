@@ -535,19 +535,8 @@ class GroundTruth:
         Trajectories
         """
         point, first, length = self.segments(min_visible)
-        C = len(self.camera_names)
         if len(point) == 0:
-            return Trajectories(
-                np.zeros(0, np.int64),
-                np.zeros(1, np.int64),
-                np.zeros((0, 3), np.float32),
-                np.zeros((0, C), np.uint8),
-                np.zeros(0, np.float32),
-                np.zeros((0, 3), np.uint8),
-                list(self.camera_names),
-                self.fps,
-                self.num_frames,
-            )
+            return Trajectories.empty(self.camera_names, self.fps, self.num_frames)
         rows_pt = np.repeat(point, length)  # (P,)
         starts = np.concatenate([[0], np.cumsum(length)[:-1]])
         rows_t = np.arange(int(length.sum())) - np.repeat(starts - first, length)  # (P,)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.rigs import ring_rig
 
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.evaluate.validity import (
@@ -66,11 +67,7 @@ def test_camera_counts():
 
 
 def test_collect_camera_samples_uses_the_recognizer():
-    cams = [
-        Camera.look_at(f"c{i}", [2 * np.cos(a), 2 * np.sin(a), 1], [0, 0, 1], (64, 48), 60.0)
-        for i, a in enumerate(np.linspace(0, np.pi, 3))
-    ]
-    rig = CameraRig(cams)
+    rig = ring_rig(angles=np.linspace(0, np.pi, 3), radius=2.0, size=(64, 48), focal=60.0)
     rng = np.random.default_rng(0)
     xyz = rng.normal(size=(50, 5, 3)) * 0.05 + [0, 0, 1]
     vis = np.ones((50, 5, 3))

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers.rigs import ring_rig
 
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.errors import FileFormatError, ValidationError
@@ -17,19 +18,8 @@ from pointtraj.reconstruct.connectivity import (
 )
 
 
-def make_ring(n: int, radius: float = 3.0, outward: tuple[int, ...] = ()) -> CameraRig:
-    """``n`` cameras on a ring looking at (0, 0, 1); those in ``outward`` look away."""
-    cams = []
-    for i in range(n):
-        a = 2 * np.pi * i / n
-        c = np.array([radius * np.cos(a), radius * np.sin(a), 1.0])
-        target = 2 * c - [0, 0, 1.0] if i in outward else [0.0, 0.0, 1.0]
-        cams.append(Camera.look_at(f"c{i}", c, target, (640, 480), 500.0))
-    return CameraRig(cams)
-
-
 def test_build_connectivity_angles_and_degrees():
-    rig = make_ring(12)  # neighbours every 30 degrees
+    rig = ring_rig(12)  # neighbours every 30 degrees
     g = build_connectivity(rig, max_angle_deg=90.0)
     assert g.camera_names == rig.names
     assert g.edges.dtype == np.int64 and g.edges.shape == (g.num_edges, 2)
@@ -50,7 +40,7 @@ def test_build_connectivity_angles_and_degrees():
 
 
 def test_build_connectivity_shared_view_check():
-    rig = make_ring(8, outward=(0,))  # camera 0 looks away from the capture volume
+    rig = ring_rig(8, outward=(0,))  # camera 0 looks away from the capture volume
     g = build_connectivity(rig, max_angle_deg=180.0, min_overlap=0.05)
     assert g.degree()[0] == 0
     assert "isolated cameras" in g.summary() and "c0" in g.summary()
@@ -63,7 +53,7 @@ def test_build_connectivity_shared_view_check():
 
 
 def test_estimate_capture_volume_ring():
-    box = estimate_capture_volume(make_ring(8, radius=3.0))
+    box = estimate_capture_volume(ring_rig(8, radius=3.0))
     np.testing.assert_allclose(box.mean(axis=0), [0.0, 0.0, 1.0], atol=1e-9)
     np.testing.assert_allclose(box[1] - box[0], [3.0, 3.0, 3.0], atol=1e-9)
 
@@ -83,7 +73,7 @@ def test_estimate_capture_volume_parallel_axes():
 
 
 def test_build_connectivity_bad_arguments():
-    rig = make_ring(4)
+    rig = ring_rig(4)
     with pytest.raises(ValueError, match="max_angle_deg"):
         build_connectivity(rig, max_angle_deg=200)
     with pytest.raises(ValueError, match="min_overlap"):
@@ -95,7 +85,7 @@ def test_build_connectivity_bad_arguments():
 
 
 def test_confirm_connectivity_edge_and_matrix_counts():
-    g = build_connectivity(make_ring(8))
+    g = build_connectivity(ring_rig(8))
     E = g.num_edges
     counts = np.arange(E) * 10
     kept = confirm_connectivity(g, counts, min_matches=50)
@@ -116,7 +106,7 @@ def test_confirm_connectivity_edge_and_matrix_counts():
 
 
 def test_save_load_round_trip(tmp_path):
-    g = build_connectivity(make_ring(6))
+    g = build_connectivity(ring_rig(6))
     g = confirm_connectivity(g, np.full(g.num_edges, 7), min_matches=1)
     path = tmp_path / "sub" / "connectivity.json"
     g.save(path)
@@ -139,12 +129,12 @@ def test_load_errors(tmp_path):
     bad.write_text(json.dumps({"format": "something-else"}))
     with pytest.raises(FileFormatError, match="format"):
         ConnectivityGraph.load(bad)
-    good = build_connectivity(make_ring(4)).to_dict()
+    good = build_connectivity(ring_rig(4)).to_dict()
     del good["edges"]
     bad.write_text(json.dumps(good))
     with pytest.raises(FileFormatError, match="missing field 'edges'"):
         ConnectivityGraph.load(bad)
-    good = build_connectivity(make_ring(4)).to_dict()
+    good = build_connectivity(ring_rig(4)).to_dict()
     good["edges"] = [[0, 9]]
     good["angles_deg"] = [1.0]
     bad.write_text(json.dumps(good))
@@ -155,7 +145,7 @@ def test_load_errors(tmp_path):
 def test_plot_writes_png(tmp_path):
     import matplotlib.image
 
-    g = build_connectivity(make_ring(8))
+    g = build_connectivity(ring_rig(8))
     out = tmp_path / "graph.png"
     g.plot(out)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -164,12 +154,12 @@ def test_plot_writes_png(tmp_path):
     bare = ConnectivityGraph(g.camera_names, g.edges, g.angles_deg)
     with pytest.raises(ValidationError, match="pass the rig"):
         bare.plot(tmp_path / "x.png")
-    bare.plot(tmp_path / "y.png", rig=make_ring(8))
+    bare.plot(tmp_path / "y.png", rig=ring_rig(8))
     assert (tmp_path / "y.png").exists()
 
 
 def test_summary_text():
-    g = build_connectivity(make_ring(12))
+    g = build_connectivity(ring_rig(12))
     text = g.summary()
     assert "12 cameras, 36 edges" in text
     assert "degree min 6, mean 6.0, max 6" in text

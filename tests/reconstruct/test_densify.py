@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_track import make_texture, render_plane
+from helpers.scenes import plane_frames, plane_images
 
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.config import from_mapping
@@ -18,16 +18,6 @@ from pointtraj.reconstruct.track import Tracker
 from pointtraj.reconstruct.triangulate import triangulate_points
 
 
-def wide_rig(w: int = 480, h: int = 360, angles=(-35.0, 0.0, 35.0)) -> CameraRig:
-    """Cameras around the plane z = 0 at these angles (default 35 degrees apart)."""
-    cams = []
-    for i, deg in enumerate(angles):
-        a = np.deg2rad(deg)
-        C = [2.0 * np.sin(a), -0.3, 2.0 * np.cos(a)]
-        cams.append(Camera.look_at(f"c{i}", C, [0, 0, 0], (w, h), 400.0, up=[0, -1, 0]))
-    return CameraRig(cams)
-
-
 def plane_point(cam: Camera, pixels: np.ndarray) -> np.ndarray:
     """Where the rays of ``pixels`` in ``cam`` meet the plane z = 0."""
     o, d = cam.rays(pixels)
@@ -35,11 +25,8 @@ def plane_point(cam: Camera, pixels: np.ndarray) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def wide_plane():
-    rig = wide_rig()
-    tex = make_texture(np.random.default_rng(5))
-    images = [render_plane(c, tex, np.array([-1.0, -1.0, 0.0]), 2.0) for c in rig]
-    return rig, images
+def wide_plane(wide_rig):
+    return wide_rig, plane_images(wide_rig, seed=5)
 
 
 def seeds(
@@ -168,12 +155,8 @@ def test_densify_config_from_toml_and_validation():
 
 def test_tracker_with_densify_reconstructs_more_of_a_wide_baseline_plane(wide_plane):
     rig, _ = wide_plane
-    tex = make_texture(np.random.default_rng(5))
     velocity = np.array([0.01, 0.0, 0.01])
-    frames = [
-        [render_plane(c, tex, np.array([-1.0, -1.0, 0.0]) + t * velocity, 2.0) for c in rig]
-        for t in range(3)
-    ]
+    frames = plane_frames(rig, 3, seed=5, velocity=velocity)
     base = ReconstructConfig(matching=MatchingConfig(num_features=400), max_angle_deg=80.0)
     counts, z_err = {}, {}
     for on in (False, True):

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.rigs import plane_rig
+from helpers.scenes import plane_images
 
-from pointtraj.camera import Camera, CameraRig
+from pointtraj.camera import CameraRig
 from pointtraj.errors import ValidationError
 from pointtraj.reconstruct.matching import (
     Features,
@@ -20,36 +22,6 @@ from pointtraj.reconstruct.matching import (
 )
 
 
-def make_texture(rng: np.random.Generator, size: int = 768) -> np.ndarray:
-    """(size, size, 3) uint8 band-limited random texture (good for ORB and optical flow)."""
-    import cv2
-
-    t = cv2.resize(rng.random((size // 8, size // 8)), (size, size), interpolation=cv2.INTER_CUBIC)
-    t += 0.5 * cv2.resize(rng.random((size // 2, size // 2)), (size, size))
-    t = (255 * (t - t.min()) / (t.max() - t.min())).astype(np.uint8)
-    return np.stack([t, np.roll(t, 7, 0), np.roll(t, 13, 1)], axis=2)
-
-
-def render_plane(cam: Camera, texture: np.ndarray, origin, extent: float) -> np.ndarray:
-    """Image of the textured square ``z = origin[2]``, ``[ox, ox + extent] x [oy, oy + extent]``."""
-    import cv2
-
-    s = extent / texture.shape[1]
-    A = np.array([[s, 0, origin[0]], [0, s, origin[1]], [0, 0, 1.0]])  # texture px -> plane
-    t = -cam.R @ cam.C
-    M = cam.K @ np.column_stack([cam.R[:, 0], cam.R[:, 1], cam.R[:, 2] * origin[2] + t])
-    return cv2.warpPerspective(texture, M @ A, cam.size, flags=cv2.INTER_LINEAR)
-
-
-def plane_rig(n: int = 3, w: int = 480, h: int = 360, dist=None) -> CameraRig:
-    cams = []
-    for i in range(n):
-        a = np.deg2rad(-15 + 30 * i / max(n - 1, 1))
-        C = [2.0 * np.sin(a), -0.3, 2.0 * np.cos(a)]
-        cams.append(Camera.look_at(f"c{i}", C, [0, 0, 0], (w, h), 400.0, up=[0, -1, 0], dist=dist))
-    return CameraRig(cams)
-
-
 def ray_plane_points(rig: CameraRig, obs: np.ndarray, z: float = 0.0) -> np.ndarray:
     """(C, N, 3) intersections of the observations' rays with the plane ``z``."""
     o, d = rig.rays(np.nan_to_num(obs))
@@ -60,12 +32,8 @@ def ray_plane_points(rig: CameraRig, obs: np.ndarray, z: float = 0.0) -> np.ndar
 
 
 @pytest.fixture(scope="module")
-def plane_scene():
-    rng = np.random.default_rng(3)
-    rig = plane_rig(3)
-    tex = make_texture(rng)
-    images = [render_plane(c, tex, (-1.0, -1.0, 0.0), 2.0) for c in rig]
-    return rig, images
+def plane_scene(narrow_rig):
+    return narrow_rig, plane_images(narrow_rig, seed=3)
 
 
 def test_detect_features_spread_and_shapes(plane_scene):
@@ -169,8 +137,8 @@ def test_build_tracks_empty_and_validation():
         build_tracks(3, feats, np.zeros((0, 2), np.int64), [])
 
 
-def test_resolve_ambiguous_keeps_the_consistent_keypoint():
-    rig = plane_rig(3)
+def test_resolve_ambiguous_keeps_the_consistent_keypoint(narrow_rig):
+    rig = narrow_rig
     X = np.array([[0.1, 0.2, 0.0], [-0.2, 0.1, 0.1]])
     pix = rig.project(X).pixels  # (3, 2, 2)
     # track 0 has two keypoints in camera 2: the true one and one 30 px off (better connected)

@@ -8,31 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from helpers.rigs import plane_rig
+from helpers.scenes import plane_frames
 
-from pointtraj.camera import Camera, CameraRig
 from pointtraj.cli import main
 from pointtraj.trajectories import Trajectories
 
 T = 4
-
-
-def _texture(rng: np.random.Generator, size: int = 768) -> np.ndarray:
-    import cv2
-
-    t = cv2.resize(rng.random((size // 8, size // 8)), (size, size), interpolation=cv2.INTER_CUBIC)
-    t += 0.5 * cv2.resize(rng.random((size // 2, size // 2)), (size, size))
-    t = (255 * (t - t.min()) / (t.max() - t.min())).astype(np.uint8)
-    return np.stack([t, np.roll(t, 7, 0), np.roll(t, 13, 1)], axis=2)
-
-
-def _render_plane(cam: Camera, texture: np.ndarray, origin, extent: float) -> np.ndarray:
-    import cv2
-
-    s = extent / texture.shape[1]
-    A = np.array([[s, 0, origin[0]], [0, s, origin[1]], [0, 0, 1.0]])
-    t = -cam.R @ cam.C
-    M = cam.K @ np.column_stack([cam.R[:, 0], cam.R[:, 1], cam.R[:, 2] * origin[2] + t])
-    return cv2.warpPerspective(texture, M @ A, cam.size, flags=cv2.INTER_LINEAR)
 
 
 @pytest.fixture()
@@ -40,17 +22,11 @@ def plane_capture(tmp_path: Path) -> Path:
     """A real capture folder (rig.toml, capture.toml, PNG frames) of a moving textured plane."""
     from pointtraj.session import Capture
 
-    cams = []
-    for i, a in enumerate(np.deg2rad([-15.0, 0.0, 15.0])):
-        C = [2.0 * np.sin(a), -0.3, 2.0 * np.cos(a)]
-        cams.append(Camera.look_at(f"cam{i}", C, [0, 0, 0], (400, 300), 340.0, up=[0, -1, 0]))
-    rig = CameraRig(cams)
-    tex = _texture(np.random.default_rng(5))
+    rig = plane_rig(angles=(-15.0, 0.0, 15.0), size=(400, 300), focal=340.0, names="cam{i}")
     cap = Capture.create(tmp_path / "capture", rig, fps=25.0, image_format="png")
-    for t in range(T):
-        origin = np.array([-1.0, -1.0, 0.0]) + t * np.array([0.01, 0.0, 0.02])
-        for cam in rig:
-            cap.write_frame(cam.name, t, _render_plane(cam, tex, origin, 2.0))
+    for t, images in enumerate(plane_frames(rig, T, seed=5, velocity=(0.01, 0.0, 0.02))):
+        for cam, image in zip(rig, images):
+            cap.write_frame(cam.name, t, image)
     return tmp_path / "capture"
 
 

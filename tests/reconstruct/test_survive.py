@@ -7,9 +7,9 @@ import dataclasses
 
 import numpy as np
 import pytest
+from helpers.rigs import plane_rig
+from helpers.scenes import plane_frames
 from scipy.spatial.transform import Rotation
-from test_densify import wide_rig
-from test_track import make_texture, render_plane
 
 from pointtraj.config import from_mapping
 from pointtraj.errors import ValidationError
@@ -40,8 +40,8 @@ def test_rigid_prediction_follows_the_neighbours_motion():
     assert not ok.any() and np.isnan(pred).all()
 
 
-def test_a_carried_point_lies_on_the_ray_of_the_view_that_agrees():
-    rig = wide_rig()
+def test_a_carried_point_lies_on_the_ray_of_the_view_that_agrees(wide_rig):
+    rig = wide_rig
     X = np.array([[0.0, 0.0, 0.0], [0.1, 0.05, 0.0], [-0.1, 0.1, 0.0]])
     obs = rig.project(X).pixels.copy()
     obs[1:] = np.nan  # each point keeps only camera 0's view
@@ -75,7 +75,7 @@ def test_occlusion_tolerance_per_point():
 
 
 def test_occlusion_tolerance_follows_the_triangulation_angle():
-    rig = wide_rig(angles=(-5.0, 0.0, 5.0, 60.0))
+    rig = plane_rig(angles=(-5.0, 0.0, 5.0, 60.0))
     X = np.zeros((3, 3))
     observed = np.zeros((4, 3), bool)
     observed[[0, 1], 0] = True  # 5 degrees apart: a poor depth
@@ -92,21 +92,14 @@ def test_occlusion_tolerance_follows_the_triangulation_angle():
 
 
 @pytest.fixture(scope="module")
-def occluded_frames():
+def occluded_frames(wide_rig):
     """A textured plane moving in front of three cameras 35 degrees apart; at frame 2 an
     occluder (a black band 60 px wide) hides part of it from cameras 1 and 2, for one frame."""
-    rig = wide_rig()
-    tex = make_texture(np.random.default_rng(3))
     velocity = np.array([0.01, 0.0, 0.005])
-    frames = []
-    for t in range(5):
-        imgs = [render_plane(c, tex, np.array([-1.0, -1.0, 0.0]) + t * velocity, 2.0) for c in rig]
-        if t == 2:
-            for c in (1, 2):
-                imgs[c] = imgs[c].copy()
-                imgs[c][:, 240:300] = 0
-        frames.append(imgs)
-    return rig, frames, velocity
+    frames = plane_frames(wide_rig, 5, seed=3, velocity=velocity)
+    for c in (1, 2):
+        frames[2][c][:, 240:300] = 0
+    return wide_rig, frames, velocity
 
 
 def test_trajectories_survive_a_frame_on_one_view(occluded_frames):

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.rigs import ring_rig
+from helpers.scenes import make_texture, plane_frames
 
-from pointtraj.camera import Camera, CameraRig
 from pointtraj.config import from_mapping
 from pointtraj.errors import ValidationError
 from pointtraj.reconstruct.config import ReconstructConfig
@@ -24,52 +25,13 @@ from pointtraj.trajectories import Trajectories
 EDGES3 = np.array([[0, 1], [1, 2], [0, 2]])
 
 
-def make_texture(rng: np.random.Generator, size: int = 768) -> np.ndarray:
-    """(size, size, 3) uint8 band-limited random texture (good for ORB and optical flow)."""
-    import cv2
-
-    t = cv2.resize(rng.random((size // 8, size // 8)), (size, size), interpolation=cv2.INTER_CUBIC)
-    t += 0.5 * cv2.resize(rng.random((size // 2, size // 2)), (size, size))
-    t = (255 * (t - t.min()) / (t.max() - t.min())).astype(np.uint8)
-    return np.stack([t, np.roll(t, 7, 0), np.roll(t, 13, 1)], axis=2)
-
-
-def render_plane(cam: Camera, texture: np.ndarray, origin, extent: float) -> np.ndarray:
-    """Image of the textured square ``z = origin[2]``, ``[ox, ox + extent] x [oy, oy + extent]``."""
-    import cv2
-
-    s = extent / texture.shape[1]
-    A = np.array([[s, 0, origin[0]], [0, s, origin[1]], [0, 0, 1.0]])  # texture px -> plane
-    t = -cam.R @ cam.C
-    M = cam.K @ np.column_stack([cam.R[:, 0], cam.R[:, 1], cam.R[:, 2] * origin[2] + t])
-    return cv2.warpPerspective(texture, M @ A, cam.size, flags=cv2.INTER_LINEAR)
-
-
-def plane_rig(n: int = 3, w: int = 480, h: int = 360) -> CameraRig:
-    cams = []
-    for i in range(n):
-        a = np.deg2rad(-15 + 30 * i / max(n - 1, 1))
-        C = [2.0 * np.sin(a), -0.3, 2.0 * np.cos(a)]
-        cams.append(Camera.look_at(f"c{i}", C, [0, 0, 0], (w, h), 400.0, up=[0, -1, 0]))
-    return CameraRig(cams)
-
-
 #: Per-frame motion of the textured plane (metres).
 VELOCITY = np.array([0.01, 0.005, 0.02])
 
 
-def plane_frames(rig: CameraRig, T: int, seed: int = 1) -> list[list[np.ndarray]]:
-    tex = make_texture(np.random.default_rng(seed))
-    return [
-        [render_plane(c, tex, np.array([-1.0, -1.0, 0.0]) + t * VELOCITY, 2.0) for c in rig]
-        for t in range(T)
-    ]
-
-
 @pytest.fixture(scope="module")
-def moving_plane():
-    rig = plane_rig(3)
-    return rig, plane_frames(rig, 5)
+def moving_plane(narrow_rig):
+    return narrow_rig, plane_frames(narrow_rig, 5, seed=1, velocity=VELOCITY)
 
 
 def test_track_flow_recovers_a_shift_and_drops_lost_points():
@@ -138,17 +100,12 @@ def test_config_from_mapping_and_validation():
 
 
 def test_select_edges_thins_per_camera():
-    cams = [
-        Camera.look_at(
-            f"r{i}",
-            [3 * np.cos(a), 3 * np.sin(a), 1.0],
-            [0, 0, 1.0],
-            (320, 240),
-            300.0,
-        )
-        for i, a in enumerate(np.linspace(0, 2 * np.pi, 8, endpoint=False))
-    ]
-    rig = CameraRig(cams)
+    rig = ring_rig(
+        angles=np.linspace(0, 2 * np.pi, 8, endpoint=False),
+        size=(320, 240),
+        focal=300.0,
+        names="r{i}",
+    )
     all_edges = select_edges(rig, 90.0)
     assert all_edges.shape[1] == 2 and np.all(all_edges[:, 0] < all_edges[:, 1])
     # 45 degrees apart: neighbours and second neighbours are within 90 degrees

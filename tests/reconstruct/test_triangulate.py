@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
+from helpers.rigs import ring_rig
 
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.errors import ValidationError
@@ -19,23 +22,10 @@ from pointtraj.reconstruct.triangulate import (
 DIST = [-0.12, 0.03, 0.0005, -0.0004, 0.0, 0.0, 0.0, 0.0]
 
 
-def make_ring(n: int, radius: float = 3.0, dist: object = None) -> CameraRig:
-    """Two-height ring of ``n`` 1280x1024 cameras looking at (0, 0, 1)."""
-    cams = []
-    for i in range(n):
-        a = 2 * np.pi * i / n
-        z = 0.6 + 1.0 * (i % 2)
-        cams.append(
-            Camera.look_at(
-                f"cam{i:02d}",
-                [radius * np.cos(a), radius * np.sin(a), z],
-                [0.0, 0.0, 1.0],
-                (1280, 1024),
-                1000.0,
-                dist=dist,
-            )
-        )
-    return CameraRig(cams)
+#: Two-height ring of ``n`` 1280x1024 cameras (f = 1000 px) 3 m from (0, 0, 1), looking at it.
+make_ring = functools.partial(
+    ring_rig, size=(1280, 1024), focal=1000.0, heights=(0.6, 1.6), names="cam{i:02d}"
+)
 
 
 def make_scene(

@@ -7,8 +7,8 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_densify import wide_rig
-from test_track import make_texture, render_plane
+from helpers.rigs import plane_rig
+from helpers.scenes import plane_frames, plane_images
 
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.config import from_mapping
@@ -21,17 +21,11 @@ from pointtraj.reconstruct.track import Tracker
 from pointtraj.reconstruct.views import ViewsConfig, depth_uncertainty, discover_views
 
 
-def sixty_rig() -> CameraRig:
-    """Three cameras at -60, 0 and +60 degrees around the plane z = 0 (60 and 120 apart)."""
-    return wide_rig(angles=(-60.0, 0.0, 60.0))
-
-
 @pytest.fixture(scope="module")
 def sixty():
-    rig = sixty_rig()
-    tex = make_texture(np.random.default_rng(3))
-    images = [render_plane(c, tex, np.array([-1.0, -1.0, 0.0]), 2.0) for c in rig]
-    return rig, images
+    """Three cameras at -60, 0 and +60 degrees around the plane z = 0 (60 and 120 apart)."""
+    rig = plane_rig(angles=(-60.0, 0.0, 60.0))
+    return rig, plane_images(rig, seed=3)
 
 
 def plane_points(n: int, seed: int = 0) -> np.ndarray:
@@ -111,12 +105,8 @@ def test_discovery_needs_texture_and_a_facing_surface(sixty):
 
 def test_tracker_points_gain_the_third_view(sixty):
     rig, _ = sixty
-    tex = make_texture(np.random.default_rng(3))
     velocity = np.array([0.01, 0.0, 0.005])
-    frames = [
-        [render_plane(c, tex, np.array([-1.0, -1.0, 0.0]) + t * velocity, 2.0) for c in rig]
-        for t in range(3)
-    ]
+    frames = plane_frames(rig, 3, seed=3, velocity=velocity)
     base = ReconstructConfig(
         matching=MatchingConfig(num_features=600), max_angle_deg=130.0, min_views_new=2
     )

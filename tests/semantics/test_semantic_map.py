@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.rigs import ring_rig
 
-from pointtraj.camera import Camera, CameraRig
 from pointtraj.errors import FileFormatError, ValidationError
 from pointtraj.semantics.pooling import pool_views
 from pointtraj.semantics.recognizers.base import ImageContext, Recognizer
@@ -34,17 +34,19 @@ def make_scene(seed=0, M=240, T=7):
     Some trajectories are fragments (start late or end early); the last frame has no points.
     """
     rng = np.random.default_rng(seed)
-    cams = []
-    for i, a in enumerate(np.linspace(0, 2 * np.pi, 8, endpoint=False)):
-        centre = [3.0 * np.cos(a), 3.0 * np.sin(a), 1.2]
-        cams.append(Camera.look_at(f"cam{i}", centre, [0, 0, 1.0], (W, H), 140.0))
-    rig = CameraRig(cams)
+    rig = ring_rig(
+        angles=np.linspace(0, 2 * np.pi, 8, endpoint=False),
+        size=(W, H),
+        focal=140.0,
+        heights=(1.2,),
+        names="cam{i}",
+    )
     label = np.arange(M) % 2
     normal = rng.normal(size=(M, 3))
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     centres = np.where(label[:, None] == 0, [-0.45, 0.0, 1.0], [0.45, 0.0, 1.0])
     xyz = np.full((M, T, 3), np.nan)
-    vis = np.zeros((M, T, len(cams)))
+    vis = np.zeros((M, T, len(rig)))
     first = rng.integers(0, 3, M)
     last = rng.integers(3, T - 1, M)
     for t in range(T):
