@@ -177,7 +177,7 @@ def point_normals(
 
 def _directions(rig: CameraRig, X: np.ndarray) -> np.ndarray:
     """(C, N, 3) unit directions from the points X (N, 3) to the camera centres."""
-    centres = np.stack([cam.C for cam in rig])
+    centres = rig.C  # (C, 3)
     d = centres[:, None, :] - X[None]
     return d / np.linalg.norm(d, axis=2, keepdims=True)
 
@@ -210,8 +210,8 @@ def depth_uncertainty(
         Metres; infinite for a point observed by fewer than two cameras.
     """
     X = check_array("xyz", xyz, (None, 3))
-    centres = np.stack([cam.C for cam in rig])
-    f = np.array([cam.K[0, 0] for cam in rig])  # (C,)
+    centres = rig.C  # (C, 3)
+    f = rig.K[:, 0, 0]  # (C,)
     out = np.full(len(X), np.inf)
     for a in range(0, len(X), _CHUNK):
         d = centres[:, None, :] - X[None, a : a + _CHUNK]  # (C, n, 3)

@@ -43,6 +43,7 @@ from .onnx import (
     Preprocessing,
     _check_image,
     _gather_channels,
+    _litert_interpreter_class,
     map_shape,
     prepare_input,
     resolve_mapping,
@@ -467,13 +468,7 @@ class BodyPartRecognizer(Recognizer):
 
 def _interpreter(path: object, threads: int):  # -> ai_edge_litert Interpreter
     """A LiteRT interpreter with allocated tensors."""
-    try:
-        from ai_edge_litert.interpreter import Interpreter
-    except ImportError:
-        raise ValidationError(
-            "the body-parts recogniser needs the LiteRT interpreter: pip install ai-edge-litert "
-            "(or pointtraj[models])"
-        ) from None
+    Interpreter = _litert_interpreter_class("the body-parts recogniser")
     interp = Interpreter(model_path=str(path), num_threads=threads)
     interp.allocate_tensors()
     return interp

@@ -507,35 +507,27 @@ def resolve_mapping(
     )
 
 
-def _preprocessing(
-    size: tuple[int, int],
-    *,
-    resize: str,
-    color: str,
-    mean: Sequence[float],
-    std: Sequence[float],
-    scale: float,
-    layout: str,
-    pad_value: float,
-) -> Preprocessing:
-    """Validated :class:`Preprocessing` (``size`` = model input (width, height))."""
-    w, h = (int(v) for v in size)
-    if w <= 0 or h <= 0:
-        raise ValidationError(f"input_size: expected positive (width, height), got {size}")
-    return Preprocessing(
-        size=(w, h),
-        resize=_choice("resize", resize, _RESIZE),
-        color=_choice("color", color, _COLOR),
-        mean=tuple(float(v) for v in check_array("mean", mean, (3,))),
-        std=tuple(float(v) for v in check_array("std", std, (3,))),
-        scale=float(scale),
-        layout=layout,
-        pad_value=float(pad_value),
-    )
+class _Model:
+    """A model runtime on the CPU with its pre-processing settings.
 
+    The base of the onnxruntime and LiteRT wrappers: both validate the same pre-processing
+    options into :attr:`pre` and run an image through :func:`prepare_input`. Subclasses load
+    the model (:meth:`_load`), settle the input size and layout from it (:meth:`_input_geometry`)
+    and run one input tensor (:meth:`_invoke`).
 
-class _OnnxModel:
-    """An onnxruntime session on the CPU with pre-processing settings."""
+    Attributes
+    ----------
+    pre : Preprocessing
+        The validated recipe.
+    dtype : numpy dtype
+        Dtype of the model's input tensor.
+    output_names : list of str
+        The model's outputs, in the order :meth:`run` returns them.
+    """
+
+    pre: Preprocessing
+    dtype: type | np.dtype
+    output_names: list[str]
 
     def __init__(
         self,
@@ -551,6 +543,60 @@ class _OnnxModel:
         pad_value: float,
         threads: int,
     ) -> None:
+        self._load(model, threads)
+        size, layout = self._input_geometry(model, input_size, _choice("layout", layout, _LAYOUT))
+        w, h = (int(v) for v in size)
+        if w <= 0 or h <= 0:
+            raise ValidationError(f"input_size: expected positive (width, height), got {size}")
+        self.pre = Preprocessing(
+            size=(w, h),
+            resize=_choice("resize", resize, _RESIZE),
+            color=_choice("color", color, _COLOR),
+            mean=tuple(float(v) for v in check_array("mean", mean, (3,))),
+            std=tuple(float(v) for v in check_array("std", std, (3,))),
+            scale=float(scale),
+            layout=layout,
+            pad_value=float(pad_value),
+        )
+
+    def _load(self, model: str | os.PathLike, threads: int) -> None:
+        """Load ``model`` and set :attr:`dtype` and :attr:`output_names`."""
+        raise NotImplementedError
+
+    def _input_geometry(
+        self, model: str | os.PathLike, input_size: tuple[int, int] | None, layout: str
+    ) -> tuple[tuple[int, int], str]:
+        """The input (width, height) and layout ("nchw" or "nhwc") from the requested ones
+        (``input_size`` None and ``layout`` "auto" ask the model)."""
+        raise NotImplementedError
+
+    def _invoke(self, tensor: np.ndarray) -> list[np.ndarray]:
+        """The model's outputs for one input tensor."""
+        raise NotImplementedError
+
+    def run(self, image: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+        """Pre-process and run one image.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint8 ndarray
+            RGB image.
+
+        Returns
+        -------
+        outputs : list of ndarray
+            The model's outputs, in :attr:`output_names` order.
+        transform : (4,) float ndarray
+            Image to model-input pixels, see :func:`prepare_input`.
+        """
+        tensor, transform = prepare_input(image, self.pre, self.dtype)
+        return self._invoke(tensor), transform
+
+
+class _OnnxModel(_Model):
+    """An onnxruntime session on the CPU with pre-processing settings."""
+
+    def _load(self, model: str | os.PathLike, threads: int) -> None:
         import onnxruntime as ort
 
         if not os.path.isfile(model):
@@ -571,8 +617,12 @@ class _OnnxModel:
         self.dtype = {"tensor(uint8)": np.uint8, "tensor(float16)": np.float16}.get(
             inp.type, np.float32
         )
-        shape = list(inp.shape)
-        _choice("layout", layout, _LAYOUT)
+        self._input_shape = list(inp.shape)
+
+    def _input_geometry(
+        self, model: str | os.PathLike, input_size: tuple[int, int] | None, layout: str
+    ) -> tuple[tuple[int, int], str]:
+        shape = self._input_shape
         if layout == "auto":
             layout = (
                 "nhwc"
@@ -583,28 +633,35 @@ class _OnnxModel:
             hw = shape[2:4] if layout == "nchw" else shape[1:3]
             if len(shape) != 4 or not all(isinstance(d, int) and d > 0 for d in hw):
                 raise ValidationError(
-                    f"input_size: the model's input {inp.name!r} has shape {shape}; give "
+                    f"input_size: the model's input {self.input_name!r} has shape {shape}; give "
                     "input_size=(width, height)"
                 )
             input_size = (int(hw[1]), int(hw[0]))
-        self.pre = _preprocessing(
-            input_size,
-            resize=resize,
-            color=color,
-            mean=mean,
-            std=std,
-            scale=scale,
-            layout=layout,
-            pad_value=pad_value,
-        )
+        return input_size, layout
 
-    def run(self, image: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-        tensor, transform = prepare_input(image, self.pre, self.dtype)
-        outputs = self.session.run(None, {self.input_name: tensor})
-        return outputs, transform
+    def _invoke(self, tensor: np.ndarray) -> list[np.ndarray]:
+        return self.session.run(None, {self.input_name: tensor})
 
 
-class _TfliteModel:
+def _litert_interpreter_class(user: str) -> type:
+    """The LiteRT ``Interpreter`` class; ``user`` (who needs it) starts the error message.
+
+    Raises
+    ------
+    ValidationError
+        If the ``ai-edge-litert`` package is not installed.
+    """
+    try:
+        from ai_edge_litert.interpreter import Interpreter
+    except ImportError:
+        raise ValidationError(
+            f"{user} needs the LiteRT interpreter: pip install ai-edge-litert "
+            "(or pointtraj[models])"
+        ) from None
+    return Interpreter
+
+
+class _TfliteModel(_Model):
     """A LiteRT interpreter (TensorFlow Lite model) with pre-processing settings.
 
     TensorFlow Lite images are NHWC. A ``uint8`` input gets raw pixels (quantised models such
@@ -612,29 +669,10 @@ class _TfliteModel:
     ``float32`` input gets ``(pixel * scale - mean) / std``.
     """
 
-    def __init__(
-        self,
-        model: str | os.PathLike,
-        *,
-        input_size: tuple[int, int] | None,
-        resize: str,
-        color: str,
-        mean: Sequence[float],
-        std: Sequence[float],
-        scale: float,
-        layout: str,
-        pad_value: float,
-        threads: int,
-    ) -> None:
+    def _load(self, model: str | os.PathLike, threads: int) -> None:
         if not os.path.isfile(model):
             raise ValidationError(f"model: no such TFLite file {os.fspath(model)!r}")
-        try:
-            from ai_edge_litert.interpreter import Interpreter
-        except ImportError:
-            raise ValidationError(
-                f"model: running {os.fspath(model)!r} needs the LiteRT interpreter: pip install "
-                "ai-edge-litert (or pointtraj[models])"
-            ) from None
+        Interpreter = _litert_interpreter_class(f"model: running {os.fspath(model)!r}")
         try:
             self.interpreter = Interpreter(model_path=os.fspath(model), num_threads=threads)
             self.interpreter.allocate_tensors()
@@ -654,31 +692,25 @@ class _TfliteModel:
             raise ValidationError(
                 f"model: {os.fspath(model)!r} has a {self.dtype} input; supported: uint8, float32"
             )
-        if _choice("layout", layout, _LAYOUT) == "nchw":
+        self._input_shape = shape
+
+    def _input_geometry(
+        self, model: str | os.PathLike, input_size: tuple[int, int] | None, layout: str
+    ) -> tuple[tuple[int, int], str]:
+        if layout == "nchw":
             raise ValidationError("layout: TensorFlow Lite models take NHWC images, not 'nchw'")
-        size = (shape[2], shape[1])
+        size = (self._input_shape[2], self._input_shape[1])
         if input_size is not None and tuple(int(v) for v in input_size) != size:
             raise ValidationError(
                 f"input_size: {os.fspath(model)!r} has a fixed {size[0]}x{size[1]} input, got "
                 f"{tuple(input_size)}"
             )
-        self.pre = _preprocessing(
-            size,
-            resize=resize,
-            color=color,
-            mean=mean,
-            std=std,
-            scale=scale,
-            layout="nhwc",
-            pad_value=pad_value,
-        )
+        return size, "nhwc"
 
-    def run(self, image: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-        tensor, transform = prepare_input(image, self.pre, self.dtype)
+    def _invoke(self, tensor: np.ndarray) -> list[np.ndarray]:
         self.interpreter.set_tensor(self.input_index, tensor)
         self.interpreter.invoke()
-        outputs = [self.interpreter.get_tensor(d["index"]).copy() for d in self.outputs]
-        return outputs, transform
+        return [self.interpreter.get_tensor(d["index"]).copy() for d in self.outputs]
 
 
 def _check_image(image: np.ndarray) -> np.ndarray:
