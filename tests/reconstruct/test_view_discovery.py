@@ -125,8 +125,8 @@ def test_tracker_points_gain_the_third_view(sixty):
 
 def test_discovery_searches_across_the_epipolar_line_of_a_miscalibrated_camera(sixty):
     """Camera 2's calibration is off by 8 px (its principal point): the point lies off the
-    epipolar line there, and only the search across it (sigma_px 6, as on the Pose2Sim demo)
-    finds it, where the true image is."""
+    epipolar line there, and only the search across it (``search_sigmas`` 2 with sigma_px 6,
+    as on the Pose2Sim demo; off by default) finds it, where the true image is."""
     rig, images = sixty
     cams = list(rig)
     K = cams[2].K.copy()
