@@ -126,7 +126,7 @@ class ReconstructConfig:
     cover_px: float = 3.0
     cover_views: int = 2
     occlusion_depth_m: float = 0.05
-    occlusion_sigmas: float = 3.0
+    occlusion_sigmas: float = 0.0
     occlusion_min_m: float = 0.01
     occlusion_cell_px: float = 8.0
     max_angle_deg: float = 90.0
