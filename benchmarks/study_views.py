@@ -16,8 +16,8 @@ sample (within ``--depth-tol``); it is observed when the store's visibility exce
 
 The false-occlusion rate applies the tracker's occlusion test at its default settings
 (``occlusion_test`` with ``occlusion_tolerance`` and ``occlusion_cell_px`` of
-``ReconstructConfig()``: 3 depth sigmas each side within 1-5 cm, 8 px cells) to each frame's
-stored points, and reports the share
+``ReconstructConfig()``: a fixed 5 cm unless ``occlusion_sigmas`` is set, 8 px cells) to each
+frame's stored points, and reports the share
 of the views it marks occluded that the ground truth sees (support: marked views of actor
 points), and the share of truly occluded in-image views it marks (support: those views). The
 tracker applies it to the frame's candidate points before it drops those seen by fewer than

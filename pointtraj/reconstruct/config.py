@@ -65,7 +65,11 @@ class ReconstructConfig:
         standard deviations of its depth on each side (from its triangulation angle,
         :func:`~.views.depth_uncertainty`), within ``[occlusion_min_m, occlusion_depth_m]``
         in all; a point is hidden only by a point whose interval lies wholly in front of its
-        own. 0: the fixed ``occlusion_depth_m`` for every point.
+        own. 0 (the default): the fixed ``occlusion_depth_m`` for every point. At 3, view
+        precision rises from 0.964 to 0.977 on paper69 (frames 0-2) and from 0.794 to 0.807 on
+        the demo (frames 0-29), and view recall falls from 0.491 to 0.439 and from 0.740 to
+        0.732: precise points are then hidden by surfaces 1-2 cm in front, and some of those
+        views were visible (``docs/reconstruction.md``).
     occlusion_min_m : float
         Lower bound of the per-point tolerance (a surface's thickness that no point resolves).
     occlusion_cell_px : float

@@ -81,7 +81,7 @@ def test_occlusion_tolerance_follows_the_triangulation_angle():
     observed[[0, 1], 0] = True  # 5 degrees apart: a poor depth
     observed[[0, 3], 1] = True  # 65 degrees apart: a good one
     observed[0, 2] = True  # one view: no depth at all
-    cfg = ReconstructConfig()
+    cfg = ReconstructConfig(occlusion_sigmas=3.0)
     tol = occlusion_tolerance(cfg, rig, X, observed)
     assert tol[0] == cfg.occlusion_depth_m and tol[2] == cfg.occlusion_depth_m
     # 2 m away at f = 400 px: 5 mm a pixel, over sin(65 deg), times 2 x 3 sigmas
