@@ -431,8 +431,33 @@ class Trajectories:
     def subset(self, tracks: np.ndarray) -> Trajectories:
         """A store holding only trajectories ``tracks`` (in that order)."""
         tracks = np.asarray(tracks, dtype=np.int64)
-        lengths = self.lengths[tracks]
-        rows = self.rows_of(tracks)
+        return self._select(tracks, self.lengths[tracks], self.rows_of(tracks))
+
+    def truncate(self, lengths: np.ndarray) -> Trajectories:
+        """A store holding the first ``lengths[m]`` rows of every trajectory m.
+
+        Parameters
+        ----------
+        lengths : (M,) int ndarray
+            Between 1 and each trajectory's length.
+
+        Returns
+        -------
+        Trajectories
+            Same trajectory indices and first frames.
+        """
+        lengths = np.asarray(lengths, dtype=np.int64)
+        if lengths.shape != (self.num_trajectories,) or np.any(
+            (lengths < 1) | (lengths > self.lengths)
+        ):
+            raise ValidationError("truncate: lengths must be in [1, length] per trajectory")
+        rows = np.repeat(self.offsets[:-1], lengths) + (
+            np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+        )
+        return self._select(np.arange(self.num_trajectories), lengths, rows)
+
+    def _select(self, tracks: np.ndarray, lengths: np.ndarray, rows: np.ndarray) -> Trajectories:
+        """The store of trajectories ``tracks`` with ``lengths`` rows each, taken at ``rows``."""
         return Trajectories(
             first_frame=self.first_frame[tracks],
             offsets=np.concatenate([[0], np.cumsum(lengths)]),

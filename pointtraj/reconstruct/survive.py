@@ -225,7 +225,7 @@ def trim_one_view_tails(
     dropped : int
         Rows dropped.
     """
-    from ..trajectories import Trajectories, dequantize_visibility
+    from ..trajectories import dequantize_visibility
 
     views = np.count_nonzero(
         dequantize_visibility(trajectories.visibility) > visibility_threshold, axis=1
@@ -244,16 +244,5 @@ def trim_one_view_tails(
     lengths = last - offsets[:-1] + 1
     if np.array_equal(lengths, trajectories.lengths):
         return trajectories, 0
-    keep = np.arange(len(track)) <= last[track]
-    out = Trajectories(
-        first_frame=trajectories.first_frame,
-        offsets=np.concatenate([[0], np.cumsum(lengths)]),
-        xyz=trajectories.xyz[keep],
-        visibility=trajectories.visibility[keep],
-        reprojection_error=trajectories.reprojection_error[keep],
-        color=trajectories.color[keep],
-        camera_names=list(trajectories.camera_names),
-        fps=trajectories.fps,
-        num_frames=trajectories.num_frames,
-    )
-    return out, int((~keep).sum())
+    out = trajectories.truncate(lengths)
+    return out, int(trajectories.num_point_frames - out.num_point_frames)
