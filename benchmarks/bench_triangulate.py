@@ -347,7 +347,7 @@ def run_occlusion_study(rig_names: list[str], distortion: bool, seed: int) -> li
     point). Reported over the point-views inside the image: the fraction truly occluded, and
     the precision / recall of the occlusion flags.
     """
-    from pointtraj.reconstruct.triangulate import _auto_cell_px, occlusion_test
+    from pointtraj.reconstruct.occlusion import _auto_cell_px, occlusion_test
     from pointtraj.synth.render import Renderer
     from pointtraj.synth.scenes import make_scene
 

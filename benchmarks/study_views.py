@@ -49,8 +49,8 @@ def occlusion_audit(capture: Path, traj, frames: range, radius: float, depth_tol
 
     from pointtraj.evaluate.views import OcclusionAudit, false_occlusion_rate, frame_truth
     from pointtraj.reconstruct.config import ReconstructConfig
+    from pointtraj.reconstruct.occlusion import occlusion_test
     from pointtraj.reconstruct.track import occlusion_tolerance
-    from pointtraj.reconstruct.triangulate import occlusion_test
     from pointtraj.session import Capture
     from pointtraj.trajectories import dequantize_visibility
 

@@ -577,7 +577,7 @@ def false_occlusion_rate(
     xyz : (N, 3) float ndarray
         The frame's points.
     occluded : (N, C) bool ndarray
-        The mask, as from :func:`pointtraj.reconstruct.triangulate.occlusion_test`.
+        The mask, as from :func:`pointtraj.reconstruct.occlusion.occlusion_test`.
     radius, depth_tol : float
         Metres, as in :func:`view_audit`.
     truth : FrameTruth, optional

@@ -9,11 +9,11 @@ from .connectivity import (
     confirm_connectivity,
     estimate_capture_volume,
 )
+from .occlusion import occlusion_test
 from .triangulate import (
     Triangulation,
     TriangulationConfig,
     compute_visibility,
-    occlusion_test,
     triangulate_points,
     triangulate_ransac,
 )

@@ -669,8 +669,8 @@ class Tracker:
 
     def _occluded(self, xyz: np.ndarray, vis: np.ndarray, projection=None) -> np.ndarray:
         """(N, C) views of the frame's points hidden behind its own surface (all False when
-        the test is off): :func:`~.triangulate.occlusion_test`."""
-        from .triangulate import occlusion_test
+        the test is off): :func:`~.occlusion.occlusion_test`."""
+        from .occlusion import occlusion_test
 
         cfg = self.config
         if cfg.occlusion_depth_m <= 0 or len(xyz) == 0:

@@ -159,9 +159,9 @@ def geometric_visibility(
     (N, C) float32 ndarray
         ``max(V, unobserved_visibility)`` where the point is inside camera c's image, in front
         of it and not behind the frame's z-buffer there
-        (:func:`pointtraj.reconstruct.triangulate.occlusion_test`); ``V`` elsewhere.
+        (:func:`pointtraj.reconstruct.occlusion.occlusion_test`); ``V`` elsewhere.
     """
-    from ..reconstruct.triangulate import occlusion_test
+    from ..reconstruct.occlusion import occlusion_test
 
     V = np.asarray(visibility, np.float32)
     if len(xyz) == 0:

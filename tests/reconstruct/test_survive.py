@@ -15,9 +15,9 @@ from pointtraj.config import from_mapping
 from pointtraj.errors import ValidationError
 from pointtraj.reconstruct.config import ReconstructConfig
 from pointtraj.reconstruct.matching import MatchingConfig
+from pointtraj.reconstruct.occlusion import occlusion_test
 from pointtraj.reconstruct.survive import SurviveConfig, carry_one_view, predict_rigid
 from pointtraj.reconstruct.track import Tracker, occlusion_tolerance
-from pointtraj.reconstruct.triangulate import occlusion_test
 
 
 def test_rigid_prediction_follows_the_neighbours_motion():

@@ -10,11 +10,11 @@ from helpers.rigs import ring_rig
 
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.errors import ValidationError
+from pointtraj.reconstruct.occlusion import occlusion_test
 from pointtraj.reconstruct.triangulate import (
     Triangulation,
     TriangulationConfig,
     compute_visibility,
-    occlusion_test,
     triangulate_points,
     triangulate_ransac,
 )
