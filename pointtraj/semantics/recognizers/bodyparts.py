@@ -39,15 +39,15 @@ import numpy as np
 
 from ...errors import ValidationError
 from .base import ImageContext, Recognizer
-from .onnx import (
+from .processing import (
     Preprocessing,
     _check_image,
     _gather_channels,
-    _litert_interpreter_class,
     map_shape,
     prepare_input,
     resolve_mapping,
 )
+from .runtime import _litert_interpreter_class
 
 __all__ = ["BodyPartRecognizer", "PersonPose", "BODY_PARTS", "LANDMARK_NAMES"]
 
