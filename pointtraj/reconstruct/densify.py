@@ -421,31 +421,13 @@ def _ncc(
     best_shift : (n, D) int ndarray
         Only with ``shifts``: the index of the best shift at each depth.
     """
-    if shifts is not None:
-        S = shifts.shape[1]
-        per = [_ncc_shifted(image, other, cam, rays, z, ref, shifts[:, j]) for j in range(S)]
-        stack = np.stack(per, axis=2)  # (n, D, S)
-        best = np.argmax(stack, axis=2)
-        return np.take_along_axis(stack, best[..., None], axis=2)[..., 0], best
-    return _ncc_shifted(image, other, cam, rays, z, ref, None)
-
-
-def _ncc_shifted(
-    image: np.ndarray,
-    other,
-    cam,
-    rays: np.ndarray,
-    z: np.ndarray,
-    ref: np.ndarray,
-    offset: np.ndarray | None,
-) -> np.ndarray:
-    """:func:`_ncc` with one pixel ``offset`` (n, 2) per patch (or none)."""
     n, D = z.shape
     P = ref.shape[1]
+    S = 1 if shifts is None else shifts.shape[1]
     R_rs = other.R @ cam.R.T
     M = (other.K @ R_rs).astype(np.float32)
     k = (other.K @ (other.R @ (cam.C - other.C))).astype(np.float32)
-    scores = np.full((n, D), -1.0)
+    scores = np.full((n, D, S), -1.0)
     rows = max(1, _REMAP_ROWS // D)
     for a in range(0, n, rows):
         B = rays[a : a + rows].astype(np.float32) @ M.T  # (m, P, 3)
@@ -455,13 +437,19 @@ def _ncc_shifted(
             w = np.where(w > 1e-6, w, np.nan)
             u = (zz * B[:, None, :, 0] + k[0]) / w
             v = (zz * B[:, None, :, 1] + k[1]) / w
-        if offset is not None:
-            u = u + offset[a : a + rows, None, None, 0].astype(np.float32)
-            v = v + offset[a : a + rows, None, None, 1].astype(np.float32)
-        cmp, _ = _zscore(_sample(image, u, v))  # (m, D, P)
-        ncc = np.einsum("mdp,mp->md", cmp, ref[a : a + rows].astype(np.float32)) / P
-        scores[a : a + rows] = np.where(np.isfinite(ncc), ncc, -1.0)
-    return scores
+        r = ref[a : a + rows].astype(np.float32)
+        for j in range(S):  # the warp is computed once, each shift only moves the samples
+            uj, vj = u, v
+            if shifts is not None:
+                off = shifts[a : a + rows, j].astype(np.float32)  # (m, 2)
+                uj, vj = u + off[:, None, None, 0], v + off[:, None, None, 1]
+            cmp, _ = _zscore(_sample(image, uj, vj))  # (m, D, P)
+            ncc = np.einsum("mdp,mp->md", cmp, r) / P
+            scores[a : a + rows, :, j] = np.where(np.isfinite(ncc), ncc, -1.0)
+    if shifts is None:
+        return scores[..., 0]
+    best = np.argmax(scores, axis=2)
+    return np.take_along_axis(scores, best[..., None], axis=2)[..., 0], best
 
 
 def _rays(cam, pixels: np.ndarray) -> np.ndarray:

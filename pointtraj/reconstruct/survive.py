@@ -184,21 +184,10 @@ def carry_one_view(
     points = np.full((n, 3), np.nan)
     for c in np.unique(cam[ok]):
         sel = np.flatnonzero(ok & (cam == c))
-        origin, direction = _rays_world(rig, int(c), obs[c, sel])
+        origin, direction = rig[int(c)].rays(obs[c, sel])  # (k, 3) each
         s = np.einsum("nk,nk->n", Xp[sel] - origin, direction)
         points[sel] = origin + s[:, None] * direction
     return points, np.where(ok, cam, -1).astype(np.int64), np.where(ok, best, np.nan), ok
-
-
-def _rays_world(rig: CameraRig, c: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera c's centre (3,) and the unit world directions (n, 3) through distorted pixels."""
-    cam = rig[c]
-    ideal = cam.undistort_pixels(pixels)
-    K = cam.K
-    y = (ideal[:, 1] - K[1, 2]) / K[1, 1]
-    x = (ideal[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-    d = np.stack([x, y, np.ones_like(x)], axis=1) @ cam.R  # camera to world: R^T d
-    return cam.C, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def trim_one_view_tails(

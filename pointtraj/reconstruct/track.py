@@ -488,7 +488,7 @@ class Tracker:
             & (st.lone < cfg.survive.frames)
             & np.all(np.isfinite(obs), axis=2).any(axis=0)
         )
-        if cand.size == 0 or int(triangulated.sum()) < cfg.survive.min_neighbors:
+        if cand.size == 0:  # (too few neighbours: predict_rigid predicts nothing)
             return tri, carried
         pred, _ = predict_rigid(
             st.xyz[triangulated], tri.points[triangulated], st.xyz[cand], cfg.survive
