@@ -152,6 +152,10 @@ def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
         raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
     if st.visibility.shape[1:] != (num_cameras,) or rec.visibility.shape[1:] != (num_cameras,):
         raise FileFormatError(path, f"tracker state is not for {num_cameras} cameras")
+    if st.lone.shape != st.ids.shape:
+        raise FileFormatError(
+            path, f"tracker state: live_lone has {st.lone.shape}, expected {st.ids.shape}"
+        )
     return rec, st
 
 
