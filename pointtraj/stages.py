@@ -165,9 +165,15 @@ def _report(progress: Progress | None, label: str, done: int, total: int) -> Non
 
 
 def synthesize(
-    capture: str | os.PathLike, config: SynthConfig, progress: Progress | None = None
+    capture: str | os.PathLike,
+    config: SynthConfig,
+    progress: Progress | None = None,
+    *,
+    executor: Executor | None = None,
 ) -> CaptureSummary:
     """Render (or resume rendering) a synthetic capture into ``capture``.
+
+    On a Dask ``executor`` each frame is a task (the files are the same as rendered here).
 
     Returns
     -------
@@ -190,6 +196,7 @@ def synthesize(
         points_per_part=config.points_per_part,
         image_format=config.image_format,
         on_frame=on_frame,
+        executor=executor,
     )
 
 
