@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import itertools
 import json
 import logging
 import math
@@ -436,53 +437,52 @@ def _draw_frame(
     return annotate(img, name)
 
 
-#: This process's off-screen renderer for tasks ((key, renderer)); Filament allows one at a time.
-_TASK_RENDERER: list = []
-
-
-def _task_renderer(job: _DrawJob, name: str) -> TrajectoryRenderer:
-    """The worker's off-screen renderer for a view of this size and style (made once)."""
-    cfg = job.cfg
-    size = cfg.size if name == ORBIT else job.rig[name].size
-    key = (tuple(size), cfg.point_size, cfg.line_width, tuple(job.bg.tolist()))
-    if _TASK_RENDERER and _TASK_RENDERER[0][0] == key:
-        return _TASK_RENDERER[0][1]
-    if _TASK_RENDERER:
-        _TASK_RENDERER.pop()[1].close()
-    renderer = TrajectoryRenderer(size, cfg.point_size, cfg.line_width, tuple(job.bg / 255.0))
-    _TASK_RENDERER.append((key, renderer))
-    return renderer
-
-
 def _draw_task(
     job: _DrawJob,
-    item: tuple[str, str, int, Path, bool],
+    item: tuple[str, str, tuple[int, ...], tuple[Path, ...], bool],
     renderer: TrajectoryRenderer | None = None,
-) -> tuple[np.ndarray | None, float]:
-    """Draw one frame of one output and write its PNG atomically (a task of
+) -> list[tuple[np.ndarray | None, float]]:
+    """Draw frames of one output and write their PNGs atomically (a task of
     :func:`render_work`).
 
     Parameters
     ----------
     job : _DrawJob
-    item : (kind, name, t, path, want_image)
+    item : (kind, name, frames, paths, want_images)
     renderer : TrajectoryRenderer, optional
-        Here, the output's renderer; on a worker (None) the worker's own (Open3D views).
+        The output's renderer, here. On a worker (None) an Open3D view gets a renderer made and
+        closed by this task, in the task's thread (Filament aborts a process that ends with a
+        renderer open, or closes it from another thread).
 
     Returns
     -------
-    image : (H, W, 3) uint8 ndarray or None
-        The frame, if ``want_image`` (for the video).
-    seconds : float
-        Time spent drawing and writing.
+    list of (image, seconds)
+        Per frame, the (H, W, 3) uint8 image if ``want_images`` (for the video), else None, and
+        the seconds spent drawing and writing it.
     """
-    kind, name, t, path, want_image = item
-    t0 = time.perf_counter()
+    kind, name, frames, paths, want_images = item
+    own = None
     if renderer is None and kind == "view" and job.cfg.engine == "open3d":
-        renderer = _task_renderer(job, name)
-    img = _draw_frame(job, kind, name, t, renderer)
-    write_png(path, img)
-    return (img if want_image else None), time.perf_counter() - t0
+        cfg = job.cfg
+        size = cfg.size if name == ORBIT else job.rig[name].size
+        renderer = own = TrajectoryRenderer(
+            size, cfg.point_size, cfg.line_width, tuple(job.bg / 255.0)
+        )
+    try:
+        out = []
+        for t, path in zip(frames, paths, strict=True):
+            t0 = time.perf_counter()
+            img = _draw_frame(job, kind, name, t, renderer)
+            write_png(path, img)
+            out.append(((img if want_images else None), time.perf_counter() - t0))
+        return out
+    finally:
+        if own is not None:
+            own.close()
+
+
+#: Frames per render task on a cluster: at most this many (the images come back together).
+_FRAMES_PER_TASK = 8
 
 
 @locked("pointtraj render")
@@ -634,11 +634,11 @@ def render_work(
 
         def draw(t: int, path: Path, out: RenderOutput = out, renderer=renderer) -> np.ndarray:
             """Draw and write frame t here, or on the executor's worker."""
-            item = (out.kind, out.name, t, path, True)
+            item = (out.kind, out.name, (t,), (path,), True)
             if remote:
-                img, seconds = next(executor.map(_draw_task, [item], context=job))
+                [(img, seconds)] = next(executor.map(_draw_task, [item], context=job))
             else:
-                img, seconds = _draw_task(job, item, renderer)
+                [(img, seconds)] = _draw_task(job, item, renderer)
             out.render_seconds += seconds
             return img
 
@@ -648,11 +648,19 @@ def render_work(
             keep = {t: fresh and not force and paths[t].is_file() for t in frames}
             ahead = None
             if remote:  # the frames to draw go to the workers now, and come back in order
-                ahead = executor.map(
-                    _draw_task,
-                    [(out.kind, out.name, t, paths[t], cfg.video) for t in frames if not keep[t]],
-                    label=f"{out.kind} {out.name}",
-                    context=job,
+                todo = [t for t in frames if not keep[t]]
+                n = max(1, min(_FRAMES_PER_TASK, -(-len(todo) // (4 * executor.workers))))
+                chunks = [todo[k : k + n] for k in range(0, len(todo), n)]
+                ahead = itertools.chain.from_iterable(
+                    executor.map(
+                        _draw_task,
+                        [
+                            (out.kind, out.name, tuple(c), tuple(paths[t] for t in c), cfg.video)
+                            for c in chunks
+                        ],
+                        label=f"{out.kind} {out.name}",
+                        context=job,
+                    )
                 )
             for t in frames:
                 img = None
