@@ -78,7 +78,7 @@ class ExecutorConfig:
     dashboard : bool
         Serve the Dask dashboard of a local cluster (its link is logged).
     wait_workers : float
-        Seconds to wait for a scheduler at ``address`` to have a worker.
+        Seconds to wait for the scheduler at ``address`` to answer, and then to have a worker.
     """
 
     address: str = ""
@@ -464,7 +464,7 @@ def open_executor(config: ExecutorConfig | None = None) -> Executor:
         logging.getLogger(name).setLevel(_dask_log_level())
     if config.address:
         try:
-            client = Client(config.address, timeout="30s")
+            client = Client(config.address, timeout=f"{config.wait_workers}s")
         except (OSError, TimeoutError) as exc:
             raise PointtrajError(
                 f"cannot reach the Dask scheduler at {config.address} ({exc}); start one with "
