@@ -255,6 +255,8 @@ class DaskExecutor(Executor):
     def map(
         self, fn, items, *, label="", progress=None, total=None, max_pending=None, context=None
     ):
+        from distributed import KilledWorker
+
         items, total = _count(items, total)
         limit = max_pending or 2 * self.workers
         shared = None
@@ -282,6 +284,12 @@ class DaskExecutor(Executor):
                 future = pending.popleft()
                 try:
                     result = future.result()
+                except KilledWorker as exc:
+                    raise PointtrajError(
+                        f"{label or 'a task'}: every worker that ran one of its tasks died "
+                        f"({exc}); out of memory? Give the workers more (--memory-limit of "
+                        "`dask worker`, [executor] memory_limit) or run fewer per machine"
+                    ) from None
                 finally:
                     future.release()
                 done += 1

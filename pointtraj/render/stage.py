@@ -361,32 +361,12 @@ class _DrawJob:
     cfg: RenderConfig
     rig: CameraRig | None
     stage: _Stage | None
-    capture: object  # Capture, a _CaptureHandle a worker opens, or None
+    capture: Capture | None  # pickled once to each worker, which reads its own files
     legend_names: tuple[str, ...]
     legend_colors: np.ndarray  # (L, 3) uint8
     base_fps: float
     grid_color: np.ndarray  # (3,) uint8
     bg: np.ndarray  # (3,) uint8
-
-
-@dataclass(frozen=True)
-class _CaptureHandle:
-    """A capture folder that each worker opens once."""
-
-    path: str
-    strict: bool
-
-    def open(self) -> Capture:
-        from ..executor import worker_cache
-        from ..session import Capture
-
-        return worker_cache(
-            ("capture", self.path, self.strict), lambda: Capture.open(self.path, strict=self.strict)
-        )
-
-
-def _capture_handle(capture: Capture | None) -> _CaptureHandle | None:
-    return None if capture is None else _CaptureHandle(str(capture.path), bool(capture.strict))
 
 
 def _draw_frame(
@@ -403,9 +383,8 @@ def _draw_frame(
         return img
 
     if kind == "overlay":
-        capture = job.capture.open() if isinstance(job.capture, _CaptureHandle) else job.capture
         img = draw_overlay(
-            capture.read(name, t),
+            job.capture.read(name, t),
             job.rig[name],
             job.traj,
             t,
@@ -605,8 +584,6 @@ def render_work(
         bg=bg,
     )
     remote = executor is not None and not executor.local
-    if remote:
-        job = dataclasses.replace(job, capture=_capture_handle(capture))
 
     outputs = [
         RenderOutput(

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..atomic import save_npz_atomic
 from ..errors import FileFormatError, ValidationError, check_array
-from ..executor import Executor, SerialExecutor, worker_cache
+from ..executor import Executor, SerialExecutor
 from ..trajectories import Trajectories
 from .pooling import POOLINGS, pool_views
 from .recognizers import RecognizerSpec
@@ -579,7 +579,7 @@ def build_semantic_map(
     frames = range(trajectories.num_frames) if frames is None else frames
     executor = executor or SerialExecutor()
     job = _FrameJob(
-        capture=capture if executor.local else _capture_handle(capture),
+        capture=capture,
         trajectories=trajectories,
         recognizer=recognizer,
         rig=rig,
@@ -687,7 +687,7 @@ def sample_views(
 class _FrameJob:
     """What every frame task of :func:`build_semantic_map` shares (sent once to each worker)."""
 
-    capture: Any  # a CaptureLike, or a _CaptureHandle that a worker opens
+    capture: Any  # a CaptureLike (pickled once to each worker; a Capture reads its own files)
     trajectories: Trajectories
     recognizer: Recognizer | RecognizerSpec
     rig: Any
@@ -695,30 +695,6 @@ class _FrameJob:
     config: SemanticsConfig
     K: int
     capture_dir: str | None
-
-
-@dataclass(frozen=True)
-class _CaptureHandle:
-    """A capture folder that each worker opens once (:func:`~pointtraj.executor.worker_cache`)."""
-
-    path: str
-    strict: bool
-
-    def open(self) -> Any:
-        from ..session import Capture
-
-        return worker_cache(
-            ("capture", self.path, self.strict), lambda: Capture.open(self.path, strict=self.strict)
-        )
-
-
-def _capture_handle(capture: Any) -> Any:
-    """A capture as it travels to a worker: a folder to open there, or the object itself."""
-    from ..session import Capture
-
-    if isinstance(capture, Capture):
-        return _CaptureHandle(os.fspath(capture.path), bool(capture.strict))
-    return capture
 
 
 def _pool_frame(job: _FrameJob, t: int) -> dict[str, np.ndarray] | None:
@@ -731,7 +707,7 @@ def _pool_frame(job: _FrameJob, t: int) -> dict[str, np.ndarray] | None:
         ``trajectories.frame(t)`` (NaN rows: no usable camera); None if nothing is pooled.
     """
     config, K, names, rig = job.config, job.K, job.names, job.rig
-    capture = job.capture.open() if isinstance(job.capture, _CaptureHandle) else job.capture
+    capture = job.capture
     recognizer = job.recognizer
     if isinstance(recognizer, RecognizerSpec):
         recognizer = recognizer.cached()
