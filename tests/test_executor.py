@@ -169,6 +169,17 @@ def test_a_task_error_comes_back_as_itself(tmp_path, tiny_reference, local_clust
         assert messages[0] == messages[1] and named in messages[0]
 
 
+def test_a_command_on_a_local_cluster_names_it_and_its_dashboard(tmp_path, tiny_reference):
+    work = tmp_path / "work"
+    shutil.copytree(tiny_reference / "work", work, symlinks=True)
+    (work / "affinity.npz").unlink()
+    pipe = str(tiny_reference / "pipe.toml")  # its [affinity] table
+    res = CliRunner().invoke(main, ["affinity", str(work), "--config", pipe, "--workers", "2"])
+    assert res.exit_code == 0, res.output
+    assert "executor: local Dask cluster, 2 workers, 2 threads; dashboard http://" in res.output
+    _assert_same_npz(tiny_reference / "work" / "affinity.npz", work / "affinity.npz")
+
+
 # -- a scheduler and two workers started as commands ----------------------------------------------
 def _dask_command() -> list[str] | None:
     exe = Path(sys.executable).parent / "dask"
