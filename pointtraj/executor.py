@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import warnings
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -509,7 +510,9 @@ def open_executor(config: ExecutorConfig | None = None) -> Executor:
         import dask
 
         workers = config.workers or usable_cores()
-        with dask.config.set({_SPAWN_ENVIRON: _worker_environ()}):
+        with dask.config.set({_SPAWN_ENVIRON: _worker_environ()}), warnings.catch_warnings():
+            # without a dashboard the scheduler's small HTTP server takes any free port
+            warnings.filterwarnings("ignore", message="Port .* is already in use")
             cluster = LocalCluster(
                 n_workers=workers,
                 threads_per_worker=config.threads_per_worker,

@@ -11,6 +11,11 @@ to per-trajectory (M, K) accumulators; then the maps are dropped. Memory is ther
 O(M K + C h w K + chunk C K) and does not grow with the number of frames. Point-frames for which
 pooling yields NaN (no usable camera) are left out of the average.
 
+Each frame (recognition, sampling, pooling) is a task of an executor (:mod:`pointtraj.executor`):
+serial by default, or on Dask workers that each load the recogniser once. Only the frame's
+pooled (N, K) confidences come back, in frame order, and are accumulated here, so the map is
+the same on any executor.
+
 For the temporal-consistency study the pooled per-frame confidences of a seeded random subset
 of trajectories (all of them when they fit in :attr:`SemanticsConfig.sample_budget_mb`) are kept
 as well (:attr:`SemanticMap.samples`). The file format is ``data_specs/semantic_map.md``.
