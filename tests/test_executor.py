@@ -251,16 +251,17 @@ def dask_processes(tmp_path):
         with Client(address, timeout="30s") as client:
             client.wait_for_workers(2, timeout=60)
         yield address, workers
-    finally:
-        for proc in reversed(procs):
-            if proc.poll() is None:
-                proc.terminate()
-        for proc in procs:
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+    finally:  # the workers first (while the scheduler answers them), then the scheduler
+        for batch in (procs[1:], procs[:1]):
+            for proc in batch:
+                if proc.poll() is None:
+                    proc.terminate()
+            for proc in batch:
+                try:
+                    proc.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
 
 
 def _run_on(address: str, pipe: Path, progress=None):
