@@ -25,16 +25,29 @@ What no join continues ends at the boundary; the stitching of the whole store
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..atomic import save_npz_atomic
 from ..camera import CameraRig
 from ..errors import ValidationError
+from ..npzfile import load_npz
 from ..trajectories import Trajectories, dequantize_visibility
 
-__all__ = ["Chunk", "JoinCount", "plan_chunks", "join_boundary", "merge_chunks"]
+__all__ = [
+    "Bridge",
+    "Chunk",
+    "JoinCount",
+    "agree_in_shared_cameras",
+    "join_boundary",
+    "match_points",
+    "merge_chunks",
+    "plan_chunks",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -85,13 +98,63 @@ class JoinCount:
     candidates : int
         Trajectories of the chunk after alive at both ``boundary - 1`` and ``boundary``.
     joined : int
-        Pairs joined into one trajectory.
+        Pairs joined into one trajectory over the overlap.
+    carried : int
+        Trajectories of the chunk before that its bridge carried on past the boundary.
+    joined_later : int
+        Of those, how many the bridge joined to a trajectory of the chunk after, at a later
+        frame.
     """
 
     boundary: int
     ending: int
     candidates: int
     joined: int
+    carried: int = 0
+    joined_later: int = 0
+
+
+@dataclass(frozen=True)
+class Bridge:
+    """Trajectories of a chunk carried on into the next chunk's frames by its own tracker.
+
+    The trajectories of the chunk before a boundary that the overlap did not join go on being
+    tracked (without new points) over the next chunk's frames, until they end or meet a
+    trajectory of the next chunk that is the same point (:func:`match_points`), which then
+    continues them from that frame on.
+
+    Attributes
+    ----------
+    ids : (R,) int64 ndarray
+        Trajectory of the chunk before, per row.
+    frame : (R,) int64 ndarray
+    xyz : (R, 3) float32 ndarray
+    visibility : (R, C) uint8 ndarray
+    error : (R,) float32 ndarray
+    color : (R, 3) uint8 ndarray
+    joins : (J, 3) int64 ndarray
+        ``(a, b, t)``: trajectory a of the chunk before continues as trajectory b of the chunk
+        after from frame t on (b's rows before t are dropped: a's bridge rows stand for them).
+    """
+
+    ids: np.ndarray
+    frame: np.ndarray
+    xyz: np.ndarray
+    visibility: np.ndarray
+    error: np.ndarray
+    color: np.ndarray
+    joins: np.ndarray
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the bridge atomically as an npz."""
+        save_npz_atomic(path, **dataclasses.asdict(self))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Bridge:
+        """Read a bridge that :meth:`save` wrote."""
+        fields = [f.name for f in dataclasses.fields(cls)]
+        d = load_npz(path, fields, "a chunk bridge")
+        return cls(**{k: d[k] for k in fields})
 
 
 def plan_chunks(frames: range, chunk_frames: int, overlap: int) -> list[Chunk]:
@@ -191,32 +254,120 @@ def join_boundary(
     ok = (d <= tolerance_m).all(axis=1)
     a, b = a[ok], b[ok]
     cost = d[ok].sum(axis=1) / common[ok].sum(axis=1)
-    # mutual best on the mean distance (ties broken by position: a strict order)
-    rank = np.empty(len(cost), np.int64)
-    rank[np.lexsort((np.arange(len(cost)), cost))] = np.arange(len(cost))
-    big = np.iinfo(np.int64).max
-    best_a = np.full(before.num_trajectories, big)
-    best_b = np.full(after.num_trajectories, big)
-    np.minimum.at(best_a, a, rank)
-    np.minimum.at(best_b, b, rank)
-    mutual = (best_a[a] == rank) & (best_b[b] == rank)
+    mutual = _mutual_best(a, b, cost, before.num_trajectories, after.num_trajectories)
     a, b = a[mutual], b[mutual]
-    # their projections agree in the cameras that see both at the boundary's last frame
-    keep = np.zeros(len(a), bool)
-    for s in range(0, len(a), _BATCH):
-        sa, sb = a[s : s + _BATCH], b[s : s + _BATCH]
-        rows_a, rows_b = _rows(before, sa, t_end), _rows(after, sb, t_end)
-        shared = (dequantize_visibility(before.visibility[rows_a]) > visibility_threshold) & (
-            dequantize_visibility(after.visibility[rows_b]) > visibility_threshold
-        )  # (n, C)
-        px_a = rig.project(before.xyz[rows_a].astype(np.float64)).pixels  # (C, n, 2)
-        px_b = rig.project(after.xyz[rows_b].astype(np.float64)).pixels
-        with np.errstate(invalid="ignore"):
-            near = np.linalg.norm(px_a - px_b, axis=2).T <= tolerance_px  # (n, C)
-        keep[s : s + _BATCH] = shared.any(axis=1) & (near | ~shared).all(axis=1)
+    rows_a, rows_b = _rows(before, a, t_end), _rows(after, b, t_end)
+    keep = agree_in_shared_cameras(
+        before.xyz[rows_a],
+        before.visibility[rows_a],
+        after.xyz[rows_b],
+        after.visibility[rows_b],
+        rig,
+        tolerance_px,
+        visibility_threshold,
+    )
     pairs = np.column_stack([a[keep], b[keep]]).astype(np.int64)
     pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
     return pairs, JoinCount(boundary, int(A.size), int(B.size), len(pairs))
+
+
+def _mutual_best(a: np.ndarray, b: np.ndarray, cost: np.ndarray, Ma: int, Mb: int) -> np.ndarray:
+    """(L,) bool: candidate pairs (a, b) that are the cheapest of both their a and their b
+    (ties broken by position, a strict order)."""
+    rank = np.empty(len(cost), np.int64)
+    rank[np.lexsort((np.arange(len(cost)), cost))] = np.arange(len(cost))
+    big = np.iinfo(np.int64).max
+    best_a = np.full(Ma, big)
+    best_b = np.full(Mb, big)
+    np.minimum.at(best_a, a, rank)
+    np.minimum.at(best_b, b, rank)
+    return (best_a[a] == rank) & (best_b[b] == rank)
+
+
+def agree_in_shared_cameras(
+    xyz_a: np.ndarray,
+    vis_a: np.ndarray,
+    xyz_b: np.ndarray,
+    vis_b: np.ndarray,
+    rig: CameraRig,
+    tolerance_px: float,
+    visibility_threshold: float,
+) -> np.ndarray:
+    """Whether pairs of points are seen by a common camera and project close in all of them.
+
+    Parameters
+    ----------
+    xyz_a, xyz_b : (n, 3) float ndarray
+    vis_a, vis_b : (n, C) uint8 ndarray
+        Quantised visibilities.
+    rig : CameraRig
+    tolerance_px : float
+    visibility_threshold : float
+
+    Returns
+    -------
+    (n,) bool ndarray
+    """
+    keep = np.zeros(len(xyz_a), bool)
+    for s in range(0, len(xyz_a), _BATCH):
+        sl = slice(s, s + _BATCH)
+        shared = (dequantize_visibility(vis_a[sl]) > visibility_threshold) & (
+            dequantize_visibility(vis_b[sl]) > visibility_threshold
+        )  # (n, C)
+        px_a = rig.project(np.asarray(xyz_a[sl], np.float64)).pixels  # (C, n, 2)
+        px_b = rig.project(np.asarray(xyz_b[sl], np.float64)).pixels
+        with np.errstate(invalid="ignore"):
+            near = np.linalg.norm(px_a - px_b, axis=2).T <= tolerance_px  # (n, C)
+        keep[sl] = shared.any(axis=1) & (near | ~shared).all(axis=1)
+    return keep
+
+
+def match_points(
+    xyz_a: np.ndarray,
+    vis_a: np.ndarray,
+    xyz_b: np.ndarray,
+    vis_b: np.ndarray,
+    rig: CameraRig,
+    tolerance_m: float,
+    tolerance_px: float,
+    visibility_threshold: float,
+) -> np.ndarray:
+    """Points of one frame from two sources that are the same point (the criteria of
+    :func:`join_boundary` on a single frame).
+
+    Parameters
+    ----------
+    xyz_a : (nA, 3) float ndarray
+    vis_a : (nA, C) uint8 ndarray
+    xyz_b : (nB, 3) float ndarray
+    vis_b : (nB, C) uint8 ndarray
+    rig, tolerance_m, tolerance_px, visibility_threshold
+        See :func:`join_boundary`.
+
+    Returns
+    -------
+    (K, 2) int64 ndarray
+        Index pairs ``(i, j)`` into a and b, mutual best within ``tolerance_m``, in increasing i.
+    """
+    if len(xyz_a) == 0 or len(xyz_b) == 0:
+        return np.zeros((0, 2), np.int64)
+    from scipy.spatial import cKDTree
+
+    k = min(_CANDIDATES, len(xyz_b))
+    dist, idx = cKDTree(np.asarray(xyz_b, np.float64)).query(
+        np.asarray(xyz_a, np.float64), k=k, distance_upper_bound=tolerance_m
+    )
+    dist, idx = dist.reshape(len(xyz_a), k), idx.reshape(len(xyz_a), k)
+    found = np.isfinite(dist)
+    i = np.repeat(np.arange(len(xyz_a)), k)[found.ravel()]
+    j = idx[found]
+    mutual = _mutual_best(i, j, dist[found], len(xyz_a), len(xyz_b))
+    i, j = i[mutual], j[mutual]
+    ok = agree_in_shared_cameras(
+        xyz_a[i], vis_a[i], xyz_b[j], vis_b[j], rig, tolerance_px, visibility_threshold
+    )
+    pairs = np.column_stack([i[ok], j[ok]]).astype(np.int64)
+    return pairs[np.argsort(pairs[:, 0], kind="stable")]
 
 
 def merge_chunks(
@@ -226,6 +377,7 @@ def merge_chunks(
     tolerance_m: float,
     tolerance_px: float,
     visibility_threshold: float,
+    bridges: list[Bridge | None] | None = None,
 ) -> tuple[Trajectories, list[JoinCount]]:
     """One store from the chunks' stores, joined across the boundaries.
 
@@ -237,30 +389,34 @@ def merge_chunks(
         From :func:`plan_chunks`, consecutive.
     rig, tolerance_m, tolerance_px, visibility_threshold
         See :func:`join_boundary`.
+    bridges : list of Bridge or None, optional
+        One per boundary (``len(chunks) - 1``): the chunk before it carried on over the
+        chunk after it.
 
     Returns
     -------
     trajectories : Trajectories
-        Frame t's points are those of the chunk that owns t; a joined trajectory is one
-        trajectory. Trajectories are numbered in the order of their first chunk, then of their
-        index in it.
+        Frame t's points are those of the chunk that owns t, and those its bridge carries; a
+        joined trajectory is one trajectory. Trajectories are numbered in the order of their
+        first chunk, then of their index in it.
     counts : list of JoinCount
-        One per boundary after the first chunk.
+        One per boundary.
     """
     if len(stores) != len(chunks) or not stores:
         raise ValidationError("merge_chunks: one store per chunk, at least one")
+    bridges = bridges if bridges is not None else [None] * (len(chunks) - 1)
+    if len(bridges) != len(chunks) - 1:
+        raise ValidationError("merge_chunks: one bridge (or None) per boundary")
     for prev, ch in zip(chunks[:-1], chunks[1:]):
         if prev.stop != ch.boundary:
             raise ValidationError(f"merge_chunks: chunks {prev.name} and {ch.name} do not meet")
     counts: list[JoinCount] = []
-    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (gid, frame, rows) per chunk
+    parts: list[tuple[np.ndarray, ...]] = []  # (gid, frame, xyz, visibility, error, color)
     prev_gid = np.zeros(0, np.int64)
     next_id = 0
     for k, (store, ch) in enumerate(zip(stores, chunks)):
-        own = np.flatnonzero(store.row_frame >= ch.boundary)  # rows of the chunk's own frames
-        has_rows = np.zeros(store.num_trajectories, bool)
-        has_rows[store.row_track[own]] = True
         gid = np.full(store.num_trajectories, -1, np.int64)
+        cut = np.full(store.num_trajectories, ch.boundary, np.int64)  # first frame kept
         if k > 0:
             pairs, count = join_boundary(
                 stores[k - 1],
@@ -273,42 +429,73 @@ def merge_chunks(
                 visibility_threshold,
             )
             gid[pairs[:, 1]] = prev_gid[pairs[:, 0]]
+            br = bridges[k - 1]
+            if br is not None:
+                a, b, t = br.joins.T if len(br.joins) else (np.zeros(0, np.int64),) * 3
+                if (
+                    np.any(gid[b] >= 0)
+                    or np.any(np.isin(a, pairs[:, 0]))
+                    or np.unique(a).size < a.size
+                    or np.unique(b).size < b.size
+                ):
+                    raise ValidationError(
+                        f"merge_chunks: the bridge into {ch.name} joins a trajectory twice"
+                    )
+                gid[b] = prev_gid[a]
+                cut[b] = t
+                parts.append(
+                    (prev_gid[br.ids], br.frame, br.xyz, br.visibility, br.error, br.color)
+                )
+                count = dataclasses.replace(
+                    count, carried=int(np.unique(br.ids).size), joined_later=len(a)
+                )
             counts.append(count)
+        own = np.flatnonzero(store.row_frame >= cut[store.row_track])
+        has_rows = np.zeros(store.num_trajectories, bool)
+        has_rows[store.row_track[own]] = True
         new = np.flatnonzero(has_rows & (gid < 0))
         gid[new] = next_id + np.arange(new.size)
         next_id += new.size
-        parts.append((gid[store.row_track[own]], store.row_frame[own], own))
+        parts.append(
+            (
+                gid[store.row_track[own]],
+                store.row_frame[own],
+                store.xyz[own],
+                store.visibility[own],
+                store.reprojection_error[own],
+                store.color[own],
+            )
+        )
         prev_gid = gid
     track = np.concatenate([p[0] for p in parts])
     frame = np.concatenate([p[1] for p in parts])
     order = np.lexsort((frame, track))
-
-    def gather(field: str) -> np.ndarray:
-        return np.concatenate([getattr(s, field)[p[2]] for s, p in zip(stores, parts)])[order]
-
     n = np.bincount(track, minlength=next_id)
     offsets = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
     frame_s = frame[order]
     first = frame_s[offsets[:-1]] if next_id else np.zeros(0, np.int64)
     if next_id and np.any(frame_s[offsets[1:] - 1] - first + 1 != n):
-        raise ValidationError("merge_chunks: a joined trajectory skips a frame")
+        raise ValidationError("merge_chunks: a joined trajectory skips or repeats a frame")
     merged = Trajectories(
         first_frame=first.astype(np.int64),
         offsets=offsets,
-        xyz=gather("xyz"),
-        visibility=gather("visibility"),
-        reprojection_error=gather("reprojection_error"),
-        color=gather("color"),
+        xyz=np.concatenate([p[2] for p in parts])[order],
+        visibility=np.concatenate([p[3] for p in parts])[order],
+        reprojection_error=np.concatenate([p[4] for p in parts])[order],
+        color=np.concatenate([p[5] for p in parts])[order],
         camera_names=list(stores[0].camera_names),
         fps=stores[0].fps,
         num_frames=max(s.num_frames for s in stores),
     )
     for c in counts:
         logger.info(
-            "chunk boundary at frame %d: %d of %d trajectories joined across it (%d candidates)",
+            "chunk boundary at frame %d: %d of %d trajectories joined across it over the "
+            "overlap (%d candidates); %d carried on by its bridge, %d of them joined later",
             c.boundary,
             c.joined,
             c.ending,
             c.candidates,
+            c.carried,
+            c.joined_later,
         )
     return merged, counts

@@ -10,6 +10,7 @@ joined across their boundaries (:mod:`~.chunks`).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import time
@@ -26,16 +27,18 @@ from ..errors import FileFormatError, ValidationError
 from ..executor import Executor, SerialExecutor
 from ..npzfile import load_npz
 from ..trajectories import Trajectories, frame_pointcloud, write_cloud_ply
-from .chunks import Chunk, merge_chunks, plan_chunks
+from .chunks import Bridge, Chunk, join_boundary, match_points, merge_chunks, plan_chunks
 from .config import ReconstructConfig
 from .stitch import stitch_trajectories
 from .survive import trim_one_view_tails
 from .track import FrameRecord, Tracker, TrackState
 
 __all__ = [
+    "BridgeTask",
     "ChunkResult",
     "ChunkTask",
     "assemble_trajectories",
+    "bridge_chunk",
     "reconstruct_capture",
     "reconstruct_chunk",
 ]
@@ -265,6 +268,150 @@ def reconstruct_chunk(task: ChunkTask) -> ChunkResult:
     )
 
 
+@dataclass(frozen=True)
+class BridgeTask:
+    """Carry a chunk's trajectories on over the next chunk: a task for :func:`bridge_chunk`.
+
+    Attributes
+    ----------
+    capture, rig
+        As for :class:`ChunkTask`.
+    state : str
+        The chunk's tracker state at the frame before the boundary.
+    after : str
+        The next chunk's ``trajectories.npz``.
+    out : str
+        The bridge file to write.
+    stop : int
+        One past the next chunk's last frame.
+    skip : (K,) int64 ndarray
+        Trajectories already joined over the overlap (not carried).
+    taken : (K,) int64 ndarray
+        The next chunk's trajectories they joined (not joined again).
+    config : ReconstructConfig
+    """
+
+    capture: Any
+    rig: CameraRig
+    state: str
+    after: str
+    out: str
+    stop: int
+    skip: np.ndarray
+    taken: np.ndarray
+    config: ReconstructConfig
+
+
+def _subset_state(state: TrackState, keep: np.ndarray) -> TrackState:
+    return TrackState(
+        state.frame,
+        state.ids[keep],
+        state.xyz[keep],
+        state.visibility[keep],
+        state.pixels[:, keep],
+        state.next_id,
+        state.lone[keep],
+    )
+
+
+def bridge_chunk(task: BridgeTask) -> str:
+    """Track a chunk's live trajectories on over the next chunk's frames (a :class:`~.chunks.Bridge`).
+
+    The trajectories alive at the chunk's last frame that the overlap did not join go on with
+    the chunk's own tracker, without new points (no matching, no densification), until they
+    end, the next chunk ends, or they meet a trajectory of the next chunk that is the same
+    point (:func:`~.chunks.match_points`), which continues them from then on.
+
+    Parameters
+    ----------
+    task : BridgeTask
+
+    Returns
+    -------
+    str
+        The bridge file (not rewritten when it exists).
+    """
+    out = Path(task.out)
+    if out.is_file():
+        return str(out)
+    cfg = task.config
+    capture = task.capture
+    if isinstance(capture, (str, os.PathLike)):
+        from ..session import Capture
+
+        capture = Capture.open(capture, rig=task.rig, strict=False)
+    rig = capture.rig
+    names = list(rig.names)
+    _, state = _load_state(Path(task.state), len(rig))
+    state = _subset_state(state, ~np.isin(state.ids, task.skip))
+    after = Trajectories.load(task.after)
+    free = np.ones(after.num_trajectories, bool)
+    free[task.taken] = False
+    carry_cfg = dataclasses.replace(
+        cfg,
+        match_every=2**62,  # never at the frames stepped here: no new points
+        densify=dataclasses.replace(cfg.densify, enabled=False),
+    )
+    tracker = Tracker(rig, carry_cfg, state=state, first_frame=state.frame)
+    tracker.set_previous_images([capture.read(n, state.frame) for n in names])
+    rows: list[tuple[np.ndarray, ...]] = []
+    joins: list[np.ndarray] = []
+    for t in range(state.frame + 1, task.stop):
+        if len(tracker.state) == 0:
+            break
+        rec = tracker.step(t, [capture.read(n, t) for n in names])
+        old = np.flatnonzero(rec.ids < state.next_id)  # (no new points: every one)
+        cand = after.frame_rows(t)
+        cand = cand[free[after.row_track[cand]]]
+        pairs = match_points(
+            rec.xyz[old],
+            rec.visibility[old],
+            after.xyz[cand],
+            after.visibility[cand],
+            rig,
+            cfg.chunk_join_m,
+            2 * cfg.ransac_threshold_px,
+            cfg.visibility_threshold,
+        )
+        joined = rec.ids[old[pairs[:, 0]]]
+        b = after.row_track[cand[pairs[:, 1]]]
+        free[b] = False
+        joins.append(np.column_stack([joined, b, np.full(len(b), t)]))
+        emit = old[~np.isin(rec.ids[old], joined)]
+        rows.append(
+            (
+                rec.ids[emit],
+                np.full(len(emit), t, np.int64),
+                rec.xyz[emit],
+                rec.visibility[emit],
+                rec.error[emit],
+                rec.color[emit],
+            )
+        )
+        if len(joined):
+            tracker.state = _subset_state(tracker.state, ~np.isin(tracker.state.ids, joined))
+    C = len(rig)
+    empty = (
+        np.zeros(0, np.int64),
+        np.zeros(0, np.int64),
+        np.zeros((0, 3), np.float32),
+        np.zeros((0, C), np.uint8),
+        np.zeros(0, np.float32),
+        np.zeros((0, 3), np.uint8),
+    )
+    cols = [np.concatenate([r[i] for r in rows]) if rows else empty[i] for i in range(6)]
+    Bridge(
+        ids=cols[0].astype(np.int64),
+        frame=cols[1],
+        xyz=cols[2].astype(np.float32),
+        visibility=cols[3].astype(np.uint8),
+        error=cols[4].astype(np.float32),
+        color=cols[5].astype(np.uint8),
+        joins=np.concatenate(joins).astype(np.int64) if joins else np.zeros((0, 3), np.int64),
+    ).save(out)
+    return str(out)
+
+
 def _track_frames(
     capture,
     folder: Path,
@@ -462,14 +609,33 @@ def _reconstruct_chunks(
             for _ in range(chunk.stop - chunk.boundary):
                 on_frame(None)
     _log_stops(stops)
-    merged, _ = merge_chunks(
-        stores,
-        chunks,
-        capture.rig,
-        cfg.chunk_join_m,
-        2 * cfg.ransac_threshold_px,
-        cfg.visibility_threshold,
-    )
+    # the trajectories that the overlap does not join go on over the next chunk: one task per
+    # boundary, after both chunks
+    tol = (cfg.chunk_join_m, 2 * cfg.ransac_threshold_px, cfg.visibility_threshold)
+    bridge_tasks = []
+    for k in range(1, len(chunks)):
+        before, ch = chunks[k - 1], chunks[k]
+        pairs, _ = join_boundary(
+            stores[k - 1], stores[k], ch.boundary, ch.boundary - ch.start, capture.rig, *tol
+        )
+        bridge_tasks.append(
+            BridgeTask(
+                source,
+                capture.rig,
+                str(_state_path(work / "chunks" / before.name, ch.boundary - 1)),
+                str(work / "chunks" / ch.name / "trajectories.npz"),
+                str(work / "chunks" / ch.name / "bridge.npz"),
+                ch.stop,
+                pairs[:, 0],
+                pairs[:, 1],
+                cfg,
+            )
+        )
+    bridges = []
+    for path in executor.map(bridge_chunk, bridge_tasks, label="reconstruct bridges"):
+        record_installed(path)
+        bridges.append(Bridge.load(path))
+    merged, _ = merge_chunks(stores, chunks, capture.rig, *tol, bridges=bridges)
     return merged
 
 

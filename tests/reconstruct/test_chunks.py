@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 from helpers.rigs import plane_rig
 
 from pointtraj.errors import ValidationError
-from pointtraj.reconstruct.chunks import Chunk, join_boundary, merge_chunks, plan_chunks
+from pointtraj.reconstruct.chunks import Bridge, Chunk, join_boundary, merge_chunks, plan_chunks
 from pointtraj.reconstruct.config import ReconstructConfig
 from pointtraj.trajectories import Trajectories
 
@@ -124,6 +125,39 @@ def test_merge_chunks_takes_each_frame_from_one_chunk_and_continues_joined_point
         assert merged.frame_rows(t).size == owner.frame_rows(t).size
 
 
+def test_merge_chunks_continues_bridged_trajectories_and_drops_what_they_replace():
+    rig = plane_rig(3)
+    T = 12
+    pts = np.array([[-0.1, 0.0, 0.0], [0.1, 0.05, 0.0]])
+    seen = np.array([[255, 255, 0]] * 2)
+    chunks = plan_chunks(range(T), 6, 2)
+    a = _store([_path(pts[0], range(0, 6)), _path(pts[1], range(1, 6))], [0, 1], seen, T)
+    # the next chunk sees point 1 3 cm off until frame 7 (no join over the overlap), then on it
+    late = _path(pts[1], range(4, 12))
+    late[:4] += [0.03, 0.0, 0.0]
+    b = _store([late], [4], seen[:1], T)
+    carried = _path(pts[1], range(6, 8))
+    bridge = Bridge(
+        ids=np.array([1, 1]),
+        frame=np.array([6, 7]),
+        xyz=carried.astype(np.float32),
+        visibility=np.array([[255, 255, 0]] * 2, np.uint8),
+        error=np.full(2, 0.2, np.float32),
+        color=np.full((2, 3), 128, np.uint8),
+        joins=np.array([[1, 0, 8]]),
+    )
+    merged, counts = merge_chunks([a, b], chunks, rig, 0.01, 4.0, 0.05, bridges=[bridge])
+    assert (counts[0].joined, counts[0].carried, counts[0].joined_later) == (0, 1, 1)
+    assert merged.num_trajectories == 2
+    assert merged.first_frame.tolist() == [0, 1] and merged.lengths.tolist() == [6, 11]
+    np.testing.assert_allclose(merged.track(1), _path(pts[1], range(1, 12)), atol=1e-6)
+    for t in range(6, T):  # point 1 once per frame: the bridge's rows replace b's first rows
+        assert merged.frame_rows(t).size == 1
+    with pytest.raises(ValidationError, match="twice"):
+        twice = dataclasses.replace(bridge, joins=np.array([[1, 0, 8], [0, 0, 9]]))
+        merge_chunks([a, b], chunks, rig, 0.01, 4.0, 0.05, bridges=[twice])
+
+
 # -- whole runs ----------------------------------------------------------------------------------
 
 
@@ -164,8 +198,9 @@ def test_chunked_run_on_a_local_cluster_equals_the_serial_run(tiny6: Path, tmp_p
     serial = reconstruct_work(tmp_path / "serial", tiny6, CHUNKED)
     assert (tmp_path / "serial" / "chunks" / "000000-000003" / "trajectories.npz").is_file()
     assert (tmp_path / "serial" / "chunks" / "000001-000006" / "trajectories.npz").is_file()
+    assert (tmp_path / "serial" / "chunks" / "000001-000006" / "bridge.npz").is_file()
     assert serial.occupied_frames == range(6)
-    with open_executor(ExecutorConfig(workers=2, dashboard=False)) as ex:
+    with open_executor(ExecutorConfig(workers=2)) as ex:
         assert ex.workers == 2
         cluster = reconstruct_work(tmp_path / "cluster", tiny6, CHUNKED, executor=ex)
     assert cluster.num_trajectories == serial.num_trajectories
