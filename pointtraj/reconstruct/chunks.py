@@ -9,18 +9,26 @@ the same output.
 
 :func:`merge_chunks` then makes one store of the chunks' stores:
 
-- each frame's points come from exactly one chunk: frames before a boundary from the chunk
+- each frame's tracked points come from one chunk: frames before a boundary from the chunk
   before it, frames from the boundary on from the chunk after it (a chunk's warm-up rows are
-  dropped), so no point is duplicated;
+  dropped), so the overlap duplicates no point;
 - a trajectory of the chunk before that is alive at the boundary's last frame continues as the
   trajectory of the chunk after that is the same physical point (:func:`join_boundary`): the
   two stay within ``chunk_join_m`` over every overlap frame where both exist, their positions
   project within twice ``ransac_threshold_px`` of each other in every camera where both are
   seen at the boundary (at least one), and each is the other's best candidate (mutual best
-  match on the mean 3D distance).
+  match on the mean 3D distance);
+- a trajectory of the chunk before that the overlap does not join is carried on over the chunk
+  after by the earlier chunk's own tracker, without new points, until it ends or meets a
+  trajectory of the chunk after that is the same point (:func:`match_points`, the same criteria
+  on one frame), which continues it from that frame on: its rows before are dropped, so that
+  the point is still in the store once a frame (a :class:`Bridge`, one executor task per
+  boundary, :func:`pointtraj.reconstruct.stage.bridge_chunk`). A fresh tracker only has the
+  points matched since its warm-up began, most of them other surface points than the earlier
+  tracker's (on the demo 75 % of the trajectories alive at a boundary have no counterpart
+  within the tolerance); without bridges they would all end at the boundary.
 
-What no join continues ends at the boundary; the stitching of the whole store
-(:mod:`~.stitch`) may still join it to a point born at the boundary.
+The stitching of the whole store (:mod:`~.stitch`) then runs as without chunks.
 """
 
 from __future__ import annotations

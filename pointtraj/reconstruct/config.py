@@ -105,8 +105,11 @@ class ReconstructConfig:
         (:mod:`pointtraj.reconstruct.chunks`). The chunks depend only on this, the overlap and
         the frame range, never on the executor: serial and cluster runs give the same output.
         A range of at most ``chunk_frames`` frames is one chunk, reconstructed as without
-        chunking. Each boundary ends the trajectories that no chunk-boundary join or stitch
-        continues (``docs/reconstruction.md``).
+        chunking. The trajectories that the overlap does not join are carried on over the next
+        chunk by their own tracker (a bridge, one more task per boundary). On the demo (frames
+        0-29 in chunks of 10) view recall and precision stay within 0.02 of one chunk's, the
+        median 3D errors within 0.3 mm, as many trajectories cross each boundary, and 35 %
+        more CPU goes to the overlap (5 %: ``chunk_frames`` 100); ``docs/reconstruction.md``.
     chunk_overlap : int
         Frames that a chunk's tracker starts before its boundary, to warm up: the trajectories
         of both chunks over these frames are compared to join them, and the chunk's points there
@@ -117,7 +120,10 @@ class ReconstructConfig:
         Two trajectories of consecutive chunks are the same point when they stay within this
         distance (metres) over every overlap frame where both exist, their projections agree
         within twice ``ransac_threshold_px`` in the cameras that see both at the boundary, and
-        each is the other's nearest such candidate.
+        each is the other's nearest such candidate. 5 mm: on the demo the joined trajectories then
+        step across the join as their ground-truth points move within 2.0 mm (median; 1.0-1.4
+        for ordinary steps), against 5 mm at 1 cm, which joins twice as many, mostly
+        neighbouring points.
     matching : MatchingConfig
         Feature detection and matching (table ``[reconstruct.matching]``).
     densify : DensifyConfig
@@ -162,7 +168,7 @@ class ReconstructConfig:
     seed: int = 0
     chunk_frames: int = 100
     chunk_overlap: int = 5
-    chunk_join_m: float = 0.01
+    chunk_join_m: float = 0.005
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     views: ViewsConfig = field(default_factory=ViewsConfig)

@@ -498,9 +498,11 @@ def reconstruct_capture(
 
     A longer range is tracked in temporal chunks (:func:`~.chunks.plan_chunks`), one executor
     task each (:func:`reconstruct_chunk`), into ``chunks/<start>-<stop>/`` (``state/`` per
-    frame, ``trajectories.npz`` when complete); the chunks' stores are joined across the
-    boundaries (:func:`~.chunks.merge_chunks`), and ``clouds/`` and ``trajectories.npz`` are
-    written from the result. Complete chunks are not recomputed; an interrupted one resumes
+    frame, ``trajectories.npz`` when complete); then, one task per boundary
+    (:func:`bridge_chunk`), the trajectories that the overlap does not join are carried on over
+    the next chunk (``chunks/<next>/bridge.npz``); the stores are joined across the boundaries
+    (:func:`~.chunks.merge_chunks`), and ``clouds/`` and ``trajectories.npz`` are written from
+    the result. Complete chunks and bridges are not recomputed; an interrupted chunk resumes
     from its last complete frame. The output does not depend on the executor.
 
     In both cases the store is then stitched (:mod:`~.stitch`) and its one-view tails trimmed
