@@ -314,13 +314,22 @@ def _subset_state(state: TrackState, keep: np.ndarray) -> TrackState:
     )
 
 
+def _rows_in(pairs: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """(n,) bool: which rows of the (n, 2) int array ``pairs`` are rows of ``other``."""
+    if len(pairs) == 0 or len(other) == 0:
+        return np.zeros(len(pairs), bool)
+    key = np.int64(max(int(pairs[:, 1].max()), int(other[:, 1].max())) + 1)
+    return np.isin(pairs[:, 0] * key + pairs[:, 1], other[:, 0] * key + other[:, 1])
+
+
 def bridge_chunk(task: BridgeTask) -> str:
     """Track a chunk's live trajectories on over the next chunk's frames (a :class:`~.chunks.Bridge`).
 
     The trajectories alive at the chunk's last frame that the overlap did not join go on with
     the chunk's own tracker, without new points (no matching, no densification), until they
     end, the next chunk ends, or they meet a trajectory of the next chunk that is the same
-    point (:func:`~.chunks.match_points`), which continues them from then on.
+    point (:func:`~.chunks.match_points`) at two frames in a row, which continues them from the
+    second on.
 
     Parameters
     ----------
@@ -356,6 +365,7 @@ def bridge_chunk(task: BridgeTask) -> str:
     tracker.set_previous_images([capture.read(n, state.frame) for n in names])
     rows: list[tuple[np.ndarray, ...]] = []
     joins: list[np.ndarray] = []
+    previous = np.zeros((0, 2), np.int64)  # the pairs that matched at the previous frame
     for t in range(state.frame + 1, task.stop):
         if len(tracker.state) == 0:
             break
@@ -373,8 +383,11 @@ def bridge_chunk(task: BridgeTask) -> str:
             2 * cfg.ransac_threshold_px,
             cfg.visibility_threshold,
         )
-        joined = rec.ids[old[pairs[:, 0]]]
-        b = after.row_track[cand[pairs[:, 1]]]
+        matched = np.column_stack([rec.ids[old[pairs[:, 0]]], after.row_track[cand[pairs[:, 1]]]])
+        # a pair joins on its second frame in a row: one frame of agreement is weak evidence
+        again = _rows_in(matched, previous)
+        previous = matched
+        joined, b = matched[again, 0], matched[again, 1]
         free[b] = False
         joins.append(np.column_stack([joined, b, np.full(len(b), t)]))
         emit = old[~np.isin(rec.ids[old], joined)]
