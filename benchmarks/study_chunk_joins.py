@@ -7,9 +7,10 @@ Usage (from the repository root)::
     .venv/bin/pointtraj reconstruct CAPTURE --frames 0:30 --out /tmp/w_one
     .venv/bin/python benchmarks/study_chunk_joins.py CAPTURE /tmp/w_c10 /tmp/w_one
 
-For each boundary of the chunked run (its chunks, bridges and parameters are read from its work
+For each boundary of the chunked run (its chunks, tails and parameters are read from its work
 folder): how many trajectories were alive at the frame before it, how many joined over the
-overlap and how many the bridge joined later, and whether the joins are right: across a join, a
+overlap, how many the tail carried on and how many of those joined later, and whether the
+joins are right: across a join, a
 trajectory should move as its nearest ground-truth surface point moves, so the step error is
 the distance between its position after the join and its position before moved by that ground-
 truth point's motion. The same error of the ordinary steps of the unchunked run at the same
@@ -35,7 +36,7 @@ def main() -> None:
     from scipy.spatial import cKDTree
 
     from pointtraj.config import from_mapping
-    from pointtraj.reconstruct.chunks import Bridge, join_boundary, plan_chunks
+    from pointtraj.reconstruct.chunks import Bridge, join_boundary, join_tail, plan_chunks
     from pointtraj.reconstruct.config import ReconstructConfig
     from pointtraj.session import Capture
     from pointtraj.synth.groundtruth import load_ground_truth
@@ -75,12 +76,12 @@ def main() -> None:
         before, after = stores[k - 1], stores[k]
         pairs, count = join_boundary(before, after, b, b - chunks[k].start, rig, *tol)
         joined = step_error(at(before, pairs[:, 0], b - 1), at(after, pairs[:, 1], b), b)
-        bridge_file = args.chunked / "chunks" / chunks[k].name / "bridge.npz"
+        tail_file = args.chunked / "chunks" / chunks[k - 1].name / "tail.npz"
         later = np.zeros(0)
         carried = 0
-        if bridge_file.is_file():
-            br = Bridge.load(bridge_file)
-            carried = int(np.unique(br.ids).size)
+        if tail_file.is_file():
+            br = join_tail(Bridge.load(tail_file), after, pairs[:, 0], pairs[:, 1], rig, *tol)
+            carried = int(np.unique(np.concatenate([br.ids, br.joins[:, 0]])).size)
             x0 = []
             for a, _, t in br.joins:
                 row = np.flatnonzero((br.ids == a) & (br.frame == t - 1))
@@ -95,7 +96,7 @@ def main() -> None:
         ordinary = step_error(at(one, alive, b - 1), at(one, alive, b), b)
         print(
             f"boundary {b}: {count.ending} alive at {b - 1}; {len(pairs)} joined over the "
-            f"overlap, step error {stats(joined)}; {carried} carried by the bridge, "
+            f"overlap, step error {stats(joined)}; {carried} carried on past it, "
             f"{len(later)} joined later, step error {stats(later)}; unchunked steps "
             f"{b - 1}->{b}: {stats(ordinary)}"
         )

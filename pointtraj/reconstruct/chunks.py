@@ -19,14 +19,15 @@ the same output.
   seen at the boundary (at least one), and each is the other's best candidate (mutual best
   match on the mean 3D distance);
 - a trajectory of the chunk before that the overlap does not join is carried on over the chunk
-  after by the earlier chunk's own tracker, without new points, until it ends or meets a
-  trajectory of the chunk after that is the same point (:func:`match_points`, the same criteria
-  on one frame), which continues it from that frame on: its rows before are dropped, so that
-  the point is still in the store once a frame (a :class:`Bridge`, one executor task per
-  boundary, :func:`pointtraj.reconstruct.stage.bridge_chunk`). A fresh tracker only has the
-  points matched since its warm-up began, most of them other surface points than the earlier
-  tracker's (on the demo about 90 % of the trajectories alive at a boundary have no
-  counterpart within 5 mm); without bridges they would all end at the boundary.
+  after by the earlier chunk's own tracker, without new points, until it ends (the chunk's
+  *tail*, a :class:`Bridge` tracked in the same executor task as the chunk, so that chunks
+  stay independent tasks) or meets a trajectory of the chunk after that is the same point at
+  two frames in a row (:func:`join_tail`: :func:`match_points`, the criteria above on one
+  frame), which continues it from the second frame on: its carried rows stop there, and that
+  trajectory's rows before are dropped. A fresh tracker only has the points matched since its
+  warm-up began, most of them other surface points than the earlier tracker's (on the demo
+  about 90 % of the trajectories alive at a boundary have no counterpart within 5 mm);
+  without tails they would all end at the boundary.
 
 The stitching of the whole store (:mod:`~.stitch`) then runs as without chunks.
 """
@@ -52,6 +53,7 @@ __all__ = [
     "JoinCount",
     "agree_in_shared_cameras",
     "join_boundary",
+    "join_tail",
     "match_points",
     "merge_chunks",
     "plan_chunks",
@@ -108,10 +110,9 @@ class JoinCount:
     joined : int
         Pairs joined into one trajectory over the overlap.
     carried : int
-        Trajectories of the chunk before that its bridge carried on past the boundary.
+        Trajectories of the chunk before that its tail carried on past the boundary.
     joined_later : int
-        Of those, how many the bridge joined to a trajectory of the chunk after, at a later
-        frame.
+        Of those, how many joined a trajectory of the chunk after at a later frame.
     """
 
     boundary: int
@@ -126,10 +127,10 @@ class JoinCount:
 class Bridge:
     """Trajectories of a chunk carried on into the next chunk's frames by its own tracker.
 
-    The trajectories of the chunk before a boundary that the overlap did not join go on being
-    tracked (without new points) over the next chunk's frames, until they end or meet a
-    trajectory of the next chunk that is the same point (:func:`match_points`), which then
-    continues them from that frame on.
+    A chunk's tail: the trajectories alive at its last frame go on being tracked (without new
+    points) over the next chunk's frames until they end; :func:`join_tail` then drops those
+    that the overlap joined, and joins the rest to the next chunk's trajectories where they
+    meet the same point.
 
     Attributes
     ----------
@@ -142,7 +143,8 @@ class Bridge:
     color : (R, 3) uint8 ndarray
     joins : (J, 3) int64 ndarray
         ``(a, b, t)``: trajectory a of the chunk before continues as trajectory b of the chunk
-        after from frame t on (b's rows before t are dropped: a's bridge rows stand for them).
+        after from frame t on (b's rows before t are dropped: a's carried rows stand for
+        them). Empty in a tail as tracked.
     """
 
     ids: np.ndarray
@@ -154,14 +156,14 @@ class Bridge:
     joins: np.ndarray
 
     def save(self, path: str | os.PathLike) -> None:
-        """Write the bridge atomically as an npz."""
+        """Write it atomically as an npz."""
         save_npz_atomic(path, **dataclasses.asdict(self))
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Bridge:
-        """Read a bridge that :meth:`save` wrote."""
+        """Read what :meth:`save` wrote."""
         fields = [f.name for f in dataclasses.fields(cls)]
-        d = load_npz(path, fields, "a chunk bridge")
+        d = load_npz(path, fields, "a chunk tail")
         return cls(**{k: d[k] for k in fields})
 
 
@@ -378,6 +380,83 @@ def match_points(
     return pairs[np.argsort(pairs[:, 0], kind="stable")]
 
 
+def _rows_in(pairs: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """(n,) bool: which rows of the (n, 2) int array ``pairs`` are rows of ``other``."""
+    if len(pairs) == 0 or len(other) == 0:
+        return np.zeros(len(pairs), bool)
+    key = np.int64(max(int(pairs[:, 1].max()), int(other[:, 1].max())) + 1)
+    return np.isin(pairs[:, 0] * key + pairs[:, 1], other[:, 0] * key + other[:, 1])
+
+
+def join_tail(
+    tail: Bridge,
+    after: Trajectories,
+    skip: np.ndarray,
+    taken: np.ndarray,
+    rig: CameraRig,
+    tolerance_m: float,
+    tolerance_px: float,
+    visibility_threshold: float,
+) -> Bridge:
+    """Join a chunk's tail (its trajectories carried on over the next chunk) to the next chunk.
+
+    Frame by frame from the boundary, a carried trajectory and a trajectory of the next chunk
+    that are the same point (:func:`match_points`) at two frames in a row are joined at the
+    second: the carried rows stop there, and the next chunk's trajectory continues it.
+
+    Parameters
+    ----------
+    tail : Bridge
+        The carried rows, without joins.
+    after : Trajectories
+        The next chunk's store.
+    skip : (K,) int ndarray
+        Trajectories already joined over the overlap: their rows are dropped.
+    taken : (K,) int ndarray
+        The next chunk's trajectories they joined: not joined again.
+    rig, tolerance_m, tolerance_px, visibility_threshold
+        See :func:`join_boundary`.
+
+    Returns
+    -------
+    Bridge
+        The rows kept, and ``joins`` ``(a, b, t)``.
+    """
+    keep = ~np.isin(tail.ids, skip)
+    ids, frame = tail.ids[keep], tail.frame[keep]
+    xyz, vis = tail.xyz[keep], tail.visibility[keep]
+    free = np.ones(after.num_trajectories, bool)
+    free[np.asarray(taken, np.int64)] = False
+    ends = np.full(int(ids.max()) + 1 if ids.size else 0, np.iinfo(np.int64).max)
+    previous = np.zeros((0, 2), np.int64)  # the pairs that matched at the frame before
+    joins = []
+    for t in np.unique(frame):
+        sel = np.flatnonzero((frame == t) & (ends[ids] > t))
+        cand = after.frame_rows(int(t))
+        cand = cand[free[after.row_track[cand]]]
+        pairs = match_points(
+            xyz[sel], vis[sel], after.xyz[cand], after.visibility[cand], rig,
+            tolerance_m, tolerance_px, visibility_threshold,
+        )  # fmt: skip
+        matched = np.column_stack([ids[sel[pairs[:, 0]]], after.row_track[cand[pairs[:, 1]]]])
+        again = _rows_in(matched, previous)
+        previous = matched
+        a, b = matched[again, 0], matched[again, 1]
+        free[b] = False
+        ends[a] = t
+        joins.append(np.column_stack([a, b, np.full(len(a), t)]))
+    rows = np.flatnonzero(keep)[frame < ends[ids]] if ids.size else np.zeros(0, np.int64)
+    return Bridge(
+        ids=tail.ids[rows],
+        frame=tail.frame[rows],
+        xyz=tail.xyz[rows],
+        visibility=tail.visibility[rows],
+        error=tail.error[rows],
+        color=tail.color[rows],
+        joins=np.concatenate(joins).astype(np.int64) if joins else np.zeros((0, 3), np.int64),
+    )
+
+
 def merge_chunks(
     stores: list[Trajectories],
     chunks: list[Chunk],
@@ -385,7 +464,9 @@ def merge_chunks(
     tolerance_m: float,
     tolerance_px: float,
     visibility_threshold: float,
-    bridges: list[Bridge | None] | None = None,
+    tails: list[Bridge | None] | None = None,
+    *,
+    resolve: bool = True,
 ) -> tuple[Trajectories, list[JoinCount]]:
     """One store from the chunks' stores, joined across the boundaries.
 
@@ -397,14 +478,17 @@ def merge_chunks(
         From :func:`plan_chunks`, consecutive.
     rig, tolerance_m, tolerance_px, visibility_threshold
         See :func:`join_boundary`.
-    bridges : list of Bridge or None, optional
+    tails : list of Bridge or None, optional
         One per boundary (``len(chunks) - 1``): the chunk before it carried on over the
         chunk after it.
+    resolve : bool
+        The tails are as tracked, without joins: join them (:func:`join_tail`). False: take
+        their rows and joins as they are.
 
     Returns
     -------
     trajectories : Trajectories
-        Frame t's points are those of the chunk that owns t, and those its bridge carries; a
+        Frame t's points are those of the chunk that owns t, and those the tail before it carries; a
         joined trajectory is one trajectory. Trajectories are numbered in the order of their
         first chunk, then of their index in it.
     counts : list of JoinCount
@@ -412,12 +496,13 @@ def merge_chunks(
     """
     if len(stores) != len(chunks) or not stores:
         raise ValidationError("merge_chunks: one store per chunk, at least one")
-    bridges = bridges if bridges is not None else [None] * (len(chunks) - 1)
-    if len(bridges) != len(chunks) - 1:
-        raise ValidationError("merge_chunks: one bridge (or None) per boundary")
+    tails = tails if tails is not None else [None] * (len(chunks) - 1)
+    if len(tails) != len(chunks) - 1:
+        raise ValidationError("merge_chunks: one tail (or None) per boundary")
     for prev, ch in zip(chunks[:-1], chunks[1:]):
         if prev.stop != ch.boundary:
             raise ValidationError(f"merge_chunks: chunks {prev.name} and {ch.name} do not meet")
+    tol = (tolerance_m, tolerance_px, visibility_threshold)
     counts: list[JoinCount] = []
     parts: list[tuple[np.ndarray, ...]] = []  # (gid, frame, xyz, visibility, error, color)
     prev_gid = np.zeros(0, np.int64)
@@ -437,7 +522,9 @@ def merge_chunks(
                 visibility_threshold,
             )
             gid[pairs[:, 1]] = prev_gid[pairs[:, 0]]
-            br = bridges[k - 1]
+            br = tails[k - 1]
+            if br is not None and resolve:
+                br = join_tail(br, store, pairs[:, 0], pairs[:, 1], rig, *tol)
             if br is not None:
                 a, b, t = br.joins.T if len(br.joins) else (np.zeros(0, np.int64),) * 3
                 if (
@@ -447,7 +534,7 @@ def merge_chunks(
                     or np.unique(b).size < b.size
                 ):
                     raise ValidationError(
-                        f"merge_chunks: the bridge into {ch.name} joins a trajectory twice"
+                        f"merge_chunks: the tail into {ch.name} joins a trajectory twice"
                     )
                 gid[b] = prev_gid[a]
                 cut[b] = t
@@ -498,7 +585,7 @@ def merge_chunks(
     for c in counts:
         logger.info(
             "chunk boundary at frame %d: %d of %d trajectories joined across it over the "
-            "overlap (%d candidates); %d carried on by its bridge, %d of them joined later",
+            "overlap (%d candidates); %d carried on past it, %d of them joined later",
             c.boundary,
             c.joined,
             c.ending,

@@ -27,18 +27,16 @@ from ..errors import FileFormatError, ValidationError
 from ..executor import Executor, SerialExecutor
 from ..npzfile import load_npz
 from ..trajectories import Trajectories, frame_pointcloud, write_cloud_ply
-from .chunks import Bridge, Chunk, join_boundary, match_points, merge_chunks, plan_chunks
+from .chunks import Bridge, Chunk, merge_chunks, plan_chunks
 from .config import ReconstructConfig
 from .stitch import stitch_trajectories
 from .survive import trim_one_view_tails
 from .track import FrameRecord, Tracker, TrackState
 
 __all__ = [
-    "BridgeTask",
     "ChunkResult",
     "ChunkTask",
     "assemble_trajectories",
-    "bridge_chunk",
     "reconstruct_capture",
     "reconstruct_chunk",
 ]
@@ -197,9 +195,13 @@ class ChunkTask:
     rig : CameraRig
         The calibration the capture was opened with.
     folder : str
-        The chunk's sub-folder of the work folder (``state/`` and ``trajectories.npz``).
+        The chunk's sub-folder of the work folder (``state/``, ``trajectories.npz``,
+        ``tail.npz``).
     start, stop : int
         The frames tracked, warm-up included.
+    tail_stop : int
+        The trajectories alive at ``stop - 1`` are carried on, without new points, up to this
+        frame (the next chunk's end; ``stop``: no tail, the last chunk).
     config : ReconstructConfig
     """
 
@@ -208,6 +210,7 @@ class ChunkTask:
     folder: str
     start: int
     stop: int
+    tail_stop: int
     config: ReconstructConfig
 
 
@@ -219,6 +222,8 @@ class ChunkResult:
     ----------
     store : str
         The chunk's ``trajectories.npz``.
+    tail : str or None
+        Its ``tail.npz`` (None for the last chunk).
     tracked : int
         Frames tracked by this call (0 when the chunk was already complete).
     stops : dict of str to int
@@ -228,16 +233,21 @@ class ChunkResult:
     """
 
     store: str
+    tail: str | None
     tracked: int
     stops: dict[str, int]
     cpu_s: float
 
 
 def reconstruct_chunk(task: ChunkTask) -> ChunkResult:
-    """Track one temporal chunk into its folder, resuming it; write its store last.
+    """Track one temporal chunk into its folder, resuming it; then its tail.
 
-    A chunk whose ``trajectories.npz`` exists is complete and is not recomputed; an
-    interrupted one resumes after its last complete frame (its ``state/`` files).
+    Writes ``state/`` per frame and ``trajectories.npz`` (the chunk's store) once its frames
+    are done, then ``tail.npz``: the trajectories alive at its last frame carried on over the
+    next chunk's frames by the same tracker, without new points, until they end
+    (:class:`~.chunks.Bridge`, joined to the next chunk by :func:`~.chunks.join_tail`). A
+    chunk whose files exist is not recomputed; an interrupted one resumes after its last
+    complete frame (its ``state/`` files).
 
     Parameters
     ----------
@@ -250,179 +260,70 @@ def reconstruct_chunk(task: ChunkTask) -> ChunkResult:
     cpu0 = time.process_time()
     folder = Path(task.folder)
     out = folder / "trajectories.npz"
-    if out.is_file():
-        return ChunkResult(str(out), 0, {}, 0.0)
+    tail = folder / "tail.npz" if task.tail_stop > task.stop else None
+    if out.is_file() and (tail is None or tail.is_file()):
+        return ChunkResult(str(out), tail and str(tail), 0, {}, 0.0)
     capture = task.capture
     if isinstance(capture, (str, os.PathLike)):
         from ..session import Capture
 
         capture = Capture.open(capture, rig=task.rig, strict=False)
     frames = range(task.start, task.stop)
-    records, tracker, resumed = _track_frames(capture, folder, frames, task.config)
-    traj = assemble_trajectories(
-        records, list(capture.rig.names), float(capture.fps), int(capture.num_frames)
-    )
-    traj.save(out)
-    return ChunkResult(
-        str(out), len(frames) - resumed, dict(tracker.stops), time.process_time() - cpu0
-    )
+    tracked, stops = 0, {}
+    if not out.is_file():
+        records, tracker, resumed = _track_frames(capture, folder, frames, task.config)
+        traj = assemble_trajectories(
+            records, list(capture.rig.names), float(capture.fps), int(capture.num_frames)
+        )
+        del records
+        traj.save(out)
+        tracked, stops = len(frames) - resumed, dict(tracker.stops)
+    if tail is not None:
+        last = _state_path(folder, task.stop - 1)
+        _carry_on(capture, last, task.tail_stop, task.config).save(tail)
+    return ChunkResult(str(out), tail and str(tail), tracked, stops, time.process_time() - cpu0)
 
 
-@dataclass(frozen=True)
-class BridgeTask:
-    """Carry a chunk's trajectories on over the next chunk: a task for :func:`bridge_chunk`.
-
-    Attributes
-    ----------
-    capture, rig
-        As for :class:`ChunkTask`.
-    state : str
-        The chunk's tracker state at the frame before the boundary.
-    after : str
-        The next chunk's ``trajectories.npz``.
-    out : str
-        The bridge file to write.
-    stop : int
-        One past the next chunk's last frame.
-    skip : (K,) int64 ndarray
-        Trajectories already joined over the overlap (not carried).
-    taken : (K,) int64 ndarray
-        The next chunk's trajectories they joined (not joined again).
-    config : ReconstructConfig
+def _carry_on(capture, state_file: Path, stop: int, cfg: ReconstructConfig) -> Bridge:
+    """Track the live trajectories of a state on to ``stop``, without new points (no matching,
+    no densification), until they end: a chunk's tail (:class:`~.chunks.Bridge`, no joins).
     """
-
-    capture: Any
-    rig: CameraRig
-    state: str
-    after: str
-    out: str
-    stop: int
-    skip: np.ndarray
-    taken: np.ndarray
-    config: ReconstructConfig
-
-
-def _subset_state(state: TrackState, keep: np.ndarray) -> TrackState:
-    return TrackState(
-        state.frame,
-        state.ids[keep],
-        state.xyz[keep],
-        state.visibility[keep],
-        state.pixels[:, keep],
-        state.next_id,
-        state.lone[keep],
-    )
-
-
-def _rows_in(pairs: np.ndarray, other: np.ndarray) -> np.ndarray:
-    """(n,) bool: which rows of the (n, 2) int array ``pairs`` are rows of ``other``."""
-    if len(pairs) == 0 or len(other) == 0:
-        return np.zeros(len(pairs), bool)
-    key = np.int64(max(int(pairs[:, 1].max()), int(other[:, 1].max())) + 1)
-    return np.isin(pairs[:, 0] * key + pairs[:, 1], other[:, 0] * key + other[:, 1])
-
-
-def bridge_chunk(task: BridgeTask) -> str:
-    """Track a chunk's live trajectories on over the next chunk's frames (a :class:`~.chunks.Bridge`).
-
-    The trajectories alive at the chunk's last frame that the overlap did not join go on with
-    the chunk's own tracker, without new points (no matching, no densification), until they
-    end, the next chunk ends, or they meet a trajectory of the next chunk that is the same
-    point (:func:`~.chunks.match_points`) at two frames in a row, which continues them from the
-    second on.
-
-    Parameters
-    ----------
-    task : BridgeTask
-
-    Returns
-    -------
-    str
-        The bridge file (not rewritten when it exists).
-    """
-    out = Path(task.out)
-    if out.is_file():
-        return str(out)
-    cfg = task.config
-    capture = task.capture
-    if isinstance(capture, (str, os.PathLike)):
-        from ..session import Capture
-
-        capture = Capture.open(capture, rig=task.rig, strict=False)
     rig = capture.rig
     names = list(rig.names)
-    _, state = _load_state(Path(task.state), len(rig))
-    state = _subset_state(state, ~np.isin(state.ids, task.skip))
-    after = Trajectories.load(task.after)
-    free = np.ones(after.num_trajectories, bool)
-    free[task.taken] = False
+    _, state = _load_state(state_file, len(rig))
     carry_cfg = dataclasses.replace(
         cfg,
         match_every=2**62,  # never at the frames stepped here: no new points
         densify=dataclasses.replace(cfg.densify, enabled=False),
     )
     tracker = Tracker(rig, carry_cfg, state=state, first_frame=state.frame)
-    tracker.set_previous_images([capture.read(n, state.frame) for n in names])
-    rows: list[tuple[np.ndarray, ...]] = []
-    joins: list[np.ndarray] = []
-    previous = np.zeros((0, 2), np.int64)  # the pairs that matched at the previous frame
-    for t in range(state.frame + 1, task.stop):
+    rows: list[FrameRecord] = []
+    if len(state):
+        tracker.set_previous_images([capture.read(n, state.frame) for n in names])
+    for t in range(state.frame + 1, stop):
         if len(tracker.state) == 0:
             break
         rec = tracker.step(t, [capture.read(n, t) for n in names])
-        old = np.flatnonzero(rec.ids < state.next_id)  # (no new points: every one)
-        cand = after.frame_rows(t)
-        cand = cand[free[after.row_track[cand]]]
-        pairs = match_points(
-            rec.xyz[old],
-            rec.visibility[old],
-            after.xyz[cand],
-            after.visibility[cand],
-            rig,
-            cfg.chunk_join_m,
-            2 * cfg.ransac_threshold_px,
-            cfg.visibility_threshold,
-        )
-        matched = np.column_stack([rec.ids[old[pairs[:, 0]]], after.row_track[cand[pairs[:, 1]]]])
-        # a pair joins on its second frame in a row: one frame of agreement is weak evidence
-        again = _rows_in(matched, previous)
-        previous = matched
-        joined, b = matched[again, 0], matched[again, 1]
-        free[b] = False
-        joins.append(np.column_stack([joined, b, np.full(len(b), t)]))
-        emit = old[~np.isin(rec.ids[old], joined)]
+        old = rec.ids < state.next_id  # (no new points: every one)
         rows.append(
-            (
-                rec.ids[emit],
-                np.full(len(emit), t, np.int64),
-                rec.xyz[emit],
-                rec.visibility[emit],
-                rec.error[emit],
-                rec.color[emit],
+            FrameRecord(
+                t, rec.ids[old], rec.xyz[old], rec.visibility[old], rec.error[old], rec.color[old]
             )
         )
-        if len(joined):
-            tracker.state = _subset_state(tracker.state, ~np.isin(tracker.state.ids, joined))
     C = len(rig)
-    empty = (
-        np.zeros(0, np.int64),
-        np.zeros(0, np.int64),
-        np.zeros((0, 3), np.float32),
-        np.zeros((0, C), np.uint8),
-        np.zeros(0, np.float32),
-        np.zeros((0, 3), np.uint8),
+    return Bridge(
+        ids=np.concatenate([r.ids for r in rows] or [np.zeros(0)]).astype(np.int64),
+        frame=np.concatenate([np.full(len(r), r.frame) for r in rows] or [np.zeros(0)]).astype(
+            np.int64
+        ),
+        xyz=np.concatenate([r.xyz for r in rows] or [np.zeros((0, 3))]).astype(np.float32),
+        visibility=np.concatenate([r.visibility for r in rows] or [np.zeros((0, C))]).astype(
+            np.uint8
+        ),
+        error=np.concatenate([r.error for r in rows] or [np.zeros(0)]).astype(np.float32),
+        color=np.concatenate([r.color for r in rows] or [np.zeros((0, 3))]).astype(np.uint8),
+        joins=np.zeros((0, 3), np.int64),
     )
-    cols = [np.concatenate([r[i] for r in rows]) if rows else empty[i] for i in range(6)]
-    Bridge(
-        ids=cols[0].astype(np.int64),
-        frame=cols[1],
-        xyz=cols[2].astype(np.float32),
-        visibility=cols[3].astype(np.uint8),
-        error=cols[4].astype(np.float32),
-        color=cols[5].astype(np.uint8),
-        joins=np.concatenate(joins).astype(np.int64) if joins else np.zeros((0, 3), np.int64),
-    ).save(out)
-    return str(out)
 
 
 def _track_frames(
@@ -511,11 +412,10 @@ def reconstruct_capture(
 
     A longer range is tracked in temporal chunks (:func:`~.chunks.plan_chunks`), one executor
     task each (:func:`reconstruct_chunk`), into ``chunks/<start>-<stop>/`` (``state/`` per
-    frame, ``trajectories.npz`` when complete); then, one task per boundary
-    (:func:`bridge_chunk`), the trajectories that the overlap does not join are carried on over
-    the next chunk (``chunks/<next>/bridge.npz``); the stores are joined across the boundaries
+    frame, ``trajectories.npz`` when complete, then ``tail.npz``: its trajectories carried on
+    over the next chunk's frames); the stores are joined across the boundaries
     (:func:`~.chunks.merge_chunks`), and ``clouds/`` and ``trajectories.npz`` are written from
-    the result. Complete chunks and bridges are not recomputed; an interrupted chunk resumes
+    the result. Complete chunks are not recomputed; an interrupted one resumes
     from its last complete frame. The output does not depend on the executor.
 
     In both cases the store is then stitched (:mod:`~.stitch`) and its one-view tails trimmed
@@ -599,8 +499,16 @@ def _reconstruct_chunks(
     path = getattr(capture, "path", None)
     source = str(path) if path is not None and Path(path).is_dir() else capture
     tasks = [
-        ChunkTask(source, capture.rig, str(work / "chunks" / c.name), c.start, c.stop, cfg)
-        for c in chunks
+        ChunkTask(
+            source,
+            capture.rig,
+            str(work / "chunks" / c.name),
+            c.start,
+            c.stop,
+            chunks[k + 1].stop if k + 1 < len(chunks) else c.stop,
+            cfg,
+        )
+        for k, c in enumerate(chunks)
     ]
     executor = executor or SerialExecutor()
     logger.info(
@@ -613,6 +521,7 @@ def _reconstruct_chunks(
     )
     stops: dict[str, int] = {}
     stores: list[Trajectories] = []
+    tails: list[Bridge | None] = []
     for chunk, result in zip(chunks, executor.map(reconstruct_chunk, tasks, label="reconstruct")):
         for f in sorted(Path(work / "chunks" / chunk.name).rglob("*")):
             if f.is_file() and not f.name.startswith(TEMP_PREFIX):
@@ -620,37 +529,20 @@ def _reconstruct_chunks(
         for k, v in result.stops.items():
             stops[k] = stops.get(k, 0) + v
         stores.append(Trajectories.load(result.store))
+        tails.append(Bridge.load(result.tail) if result.tail else None)
         if on_frame is not None:
             for _ in range(chunk.stop - chunk.boundary):
                 on_frame(None)
     _log_stops(stops)
-    # the trajectories that the overlap does not join go on over the next chunk: one task per
-    # boundary, after both chunks
-    tol = (cfg.chunk_join_m, 2 * cfg.ransac_threshold_px, cfg.visibility_threshold)
-    bridge_tasks = []
-    for k in range(1, len(chunks)):
-        before, ch = chunks[k - 1], chunks[k]
-        pairs, _ = join_boundary(
-            stores[k - 1], stores[k], ch.boundary, ch.boundary - ch.start, capture.rig, *tol
-        )
-        bridge_tasks.append(
-            BridgeTask(
-                source,
-                capture.rig,
-                str(_state_path(work / "chunks" / before.name, ch.boundary - 1)),
-                str(work / "chunks" / ch.name / "trajectories.npz"),
-                str(work / "chunks" / ch.name / "bridge.npz"),
-                ch.stop,
-                pairs[:, 0],
-                pairs[:, 1],
-                cfg,
-            )
-        )
-    bridges = []
-    for path in executor.map(bridge_chunk, bridge_tasks, label="reconstruct bridges"):
-        record_installed(path)
-        bridges.append(Bridge.load(path))
-    merged, _ = merge_chunks(stores, chunks, capture.rig, *tol, bridges=bridges)
+    merged, _ = merge_chunks(
+        stores,
+        chunks,
+        capture.rig,
+        cfg.chunk_join_m,
+        2 * cfg.ransac_threshold_px,
+        cfg.visibility_threshold,
+        tails=tails[:-1],
+    )
     return merged
 
 

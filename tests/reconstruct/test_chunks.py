@@ -10,7 +10,14 @@ import pytest
 from helpers.rigs import plane_rig
 
 from pointtraj.errors import ValidationError
-from pointtraj.reconstruct.chunks import Bridge, Chunk, join_boundary, merge_chunks, plan_chunks
+from pointtraj.reconstruct.chunks import (
+    Bridge,
+    Chunk,
+    join_boundary,
+    join_tail,
+    merge_chunks,
+    plan_chunks,
+)
 from pointtraj.reconstruct.config import ReconstructConfig
 from pointtraj.trajectories import Trajectories
 
@@ -146,7 +153,9 @@ def test_merge_chunks_continues_bridged_trajectories_and_drops_what_they_replace
         color=np.full((2, 3), 128, np.uint8),
         joins=np.array([[1, 0, 8]]),
     )
-    merged, counts = merge_chunks([a, b], chunks, rig, 0.01, 4.0, 0.05, bridges=[bridge])
+    merged, counts = merge_chunks(
+        [a, b], chunks, rig, 0.01, 4.0, 0.05, tails=[bridge], resolve=False
+    )
     assert (counts[0].joined, counts[0].carried, counts[0].joined_later) == (0, 1, 1)
     assert merged.num_trajectories == 2
     assert merged.first_frame.tolist() == [0, 1] and merged.lengths.tolist() == [6, 11]
@@ -155,7 +164,36 @@ def test_merge_chunks_continues_bridged_trajectories_and_drops_what_they_replace
         assert merged.frame_rows(t).size == 1
     with pytest.raises(ValidationError, match="twice"):
         twice = dataclasses.replace(bridge, joins=np.array([[1, 0, 8], [0, 0, 9]]))
-        merge_chunks([a, b], chunks, rig, 0.01, 4.0, 0.05, bridges=[twice])
+        merge_chunks([a, b], chunks, rig, 0.01, 4.0, 0.05, tails=[twice], resolve=False)
+
+
+def test_join_tail_joins_on_the_second_frame_of_agreement():
+    rig = plane_rig(3)
+    T = 12
+    pts = np.array([[-0.1, 0.0, 0.0], [0.1, 0.05, 0.0]])
+    seen = np.array([[255, 255, 0]])
+    # the next chunk has point 1 from frame 7 on, and another point (taken over the overlap)
+    after = _store([_path(pts[0], range(4, 12)), _path(pts[1], range(7, 12))], [4, 7],
+                   np.repeat(seen, 2, axis=0), T)  # fmt: skip
+    # the tail carries point 0 (joined over the overlap) and point 1 over frames 6-10
+    frames = np.array([6, 7, 8, 9, 10])
+    tail = Bridge(
+        ids=np.array([0] * 5 + [1] * 5),
+        frame=np.concatenate([frames, frames]),
+        xyz=np.concatenate([_path(pts[0], frames), _path(pts[1], frames)]).astype(np.float32),
+        visibility=np.repeat(seen, 10, axis=0).astype(np.uint8),
+        error=np.full(10, 0.2, np.float32),
+        color=np.full((10, 3), 128, np.uint8),
+        joins=np.zeros((0, 3), np.int64),
+    )
+    out = join_tail(tail, after, np.array([0]), np.array([0]), rig, 0.005, 4.0, 0.05)
+    assert out.joins.tolist() == [[1, 1, 8]]  # matched at 7 and 8: joined at 8
+    assert out.ids.tolist() == [1, 1] and out.frame.tolist() == [6, 7]
+    # point 1 carried 2 cm off at frame 7: it matches at 8 and 9 first, and joins at 9
+    moved = dataclasses.replace(tail, xyz=tail.xyz.copy())
+    moved.xyz[6] += [0.02, 0.0, 0.0]
+    out = join_tail(moved, after, np.array([0]), np.array([0]), rig, 0.005, 4.0, 0.05)
+    assert out.joins.tolist() == [[1, 1, 9]] and out.frame.tolist() == [6, 7, 8]
 
 
 # -- whole runs ----------------------------------------------------------------------------------
@@ -198,7 +236,8 @@ def test_chunked_run_on_a_local_cluster_equals_the_serial_run(tiny6: Path, tmp_p
     serial = reconstruct_work(tmp_path / "serial", tiny6, CHUNKED)
     assert (tmp_path / "serial" / "chunks" / "000000-000003" / "trajectories.npz").is_file()
     assert (tmp_path / "serial" / "chunks" / "000001-000006" / "trajectories.npz").is_file()
-    assert (tmp_path / "serial" / "chunks" / "000001-000006" / "bridge.npz").is_file()
+    assert (tmp_path / "serial" / "chunks" / "000000-000003" / "tail.npz").is_file()
+    assert not (tmp_path / "serial" / "chunks" / "000001-000006" / "tail.npz").exists()
     assert serial.occupied_frames == range(6)
     with open_executor(ExecutorConfig(workers=2)) as ex:
         assert ex.workers == 2
