@@ -10,7 +10,8 @@ Usage (from the repository root)::
 
 The frame range is tracked in temporal chunks (``chunk_frames``, ``chunk_overlap`` of
 ``[reconstruct]``; the defaults here cut frames 0-5 into two chunks, 0-2 and 3-5, the second
-warmed up on frame 2), once serially in this process and once on a local cluster of
+warmed up on frame 2, the first carrying its trajectories on over 3-5 without new points: two
+tasks of about 4 frames' tracking each), once serially in this process and once on a local cluster of
 ``--workers`` worker processes (started before the clock, its start-up reported apart). Both
 runs write a fresh work folder under ``--out``; the script prints the wall and CPU times of
 each, the speed-up, and whether ``trajectories.npz`` and every cloud are byte-identical (the
@@ -18,7 +19,7 @@ chunk plan depends only on the configuration, so they must be). Exit status 1 wh
 differ.
 
 CPU time is this process's (the serial run does all its work here) plus, for the cluster, the
-CPU seconds that the workers report for their chunks. On a machine shared with other jobs the
+CPU seconds of the worker processes over the run (psutil). On a machine shared with other jobs the
 wall times are inflated; compare the two lines of one run.
 """
 
@@ -108,6 +109,7 @@ def main() -> int:
     t0 = time.perf_counter()
     with open_executor(ExecutorConfig(workers=args.workers)) as ex:
         startup = time.perf_counter() - t0
+        logging.getLogger("distributed").setLevel(logging.ERROR)  # its import reset it
         w0 = _worker_cpu(ex)
         t0, c0 = time.perf_counter(), time.process_time()
         traj = reconstruct_work(args.out / "cluster", args.capture, cfg, frames, executor=ex)
