@@ -277,19 +277,25 @@ def test_chunks_resume_and_track_as_one_run_would(tiny6: Path, tmp_path: Path):
         ):
             np.testing.assert_array_equal(a["rec_xyz"], b["rec_xyz"])
             np.testing.assert_array_equal(a["rec_ids"], b["rec_ids"])
-    # a complete chunk is not recomputed
+    # a complete chunk is not recomputed; one without its tail only tracks the tail
     cap = Capture.open(tiny6)
-    task = ChunkTask(str(tiny6), cap.rig, str(work / "chunks" / "000000-000003"), 0, 3, CHUNKED)
+    first = work / "chunks" / "000000-000003"
+    task = ChunkTask(str(tiny6), cap.rig, str(first), 0, 3, 6, CHUNKED)
     assert reconstruct_chunk(task).tracked == 0
+    tail = (first / "tail.npz").read_bytes()
+    (first / "tail.npz").unlink()
+    result = reconstruct_chunk(task)
+    assert result.tracked == 0 and (first / "tail.npz").read_bytes() == tail
     # an interrupted chunk resumes after its last complete frame, to the same result
     second = work / "chunks" / "000001-000006"
     (second / "trajectories.npz").unlink()
     (second / "state" / "000005.npz").unlink()
     (second / "state" / "000004.npz").unlink()
-    task = ChunkTask(str(tiny6), cap.rig, str(second), 1, 6, CHUNKED)
+    task = ChunkTask(str(tiny6), cap.rig, str(second), 1, 6, 6, CHUNKED)
     assert reconstruct_chunk(task).tracked == 2
     (second / "trajectories.npz").unlink()
     (second / "state" / "000005.npz").unlink()
+    (first / "tail.npz").unlink()
     (work / "trajectories.npz").unlink()
     reconstruct_work(work, tiny6, CHUNKED)
     for k, v in reference.items():
