@@ -242,6 +242,7 @@ def reconstruct_work(
     force: bool = False,
     frames_label: str = "frames",
     progress: Progress | None = None,
+    executor: Executor | None = None,
 ) -> Trajectories:
     """Reconstruct the capture's trajectories into the work folder, resuming an interrupted run.
 
@@ -261,6 +262,9 @@ def reconstruct_work(
     frames_label : str
         How errors about ``frames`` name it (``"--frames"``, ``"pipe.toml: frames"``).
     progress : Progress, optional
+    executor : Executor, optional
+        Runs the temporal chunks of a long frame range (``chunk_frames``; default serially).
+        The output does not depend on it.
 
     Returns
     -------
@@ -294,7 +298,7 @@ def reconstruct_work(
     foreign = not wf.is_pointtraj()
     wf.claim(force)
     with wf.lock("pointtraj reconstruct"):
-        has_run = wf.state.is_dir() or wf.clouds.is_dir()
+        has_run = wf.state.is_dir() or wf.clouds.is_dir() or (wf.path / "chunks").is_dir()
         restart = restart or (foreign and has_run)  # taken over with force: nothing to resume
         if has_run and not restart:
             wanted = {"reconstruct_run": None, "reconstruct": None} | wf.run_document(
@@ -311,7 +315,7 @@ def reconstruct_work(
                 )
                 restart = True
         if restart:
-            wf.remove_outputs(["state", "clouds"], force=force)
+            wf.remove_outputs(["state", "clouds", "chunks"], force=force)
         wf.write_toml(capture, rng, cfg)
         done = [0]
 
@@ -319,7 +323,7 @@ def reconstruct_work(
             done[0] += 1
             _report(progress, "reconstruct", done[0], len(rng))
 
-        return reconstruct_capture(cap, wf.path, rng, cfg, on_frame=on_frame)
+        return reconstruct_capture(cap, wf.path, rng, cfg, on_frame=on_frame, executor=executor)
 
 
 def ground_truth_work(
