@@ -355,7 +355,7 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
                 {"reconstruct": config.reconstruct, "frames": config.frames},
                 lambda: _capture_stamp(cap),
                 [wf.trajectories],
-                lambda p, ex: _reconstruct(config, p, force_folder),
+                lambda p, ex: _reconstruct(config, p, force_folder, ex),
                 "reconstruct",
             )
         )
@@ -450,7 +450,9 @@ def _fetch_example(name: str, capture: Path) -> None:
     fetch_example(name, capture)
 
 
-def _reconstruct(config: PipelineConfig, progress: Progress | None, force: bool) -> None:
+def _reconstruct(
+    config: PipelineConfig, progress: Progress | None, force: bool, executor: Executor | None
+) -> None:
     """Reconstruct, resuming an interrupted run of the same settings, else starting afresh."""
     from . import stages
 
@@ -463,6 +465,7 @@ def _reconstruct(config: PipelineConfig, progress: Progress | None, force: bool)
         force=force,
         frames_label=config.frames_label,
         progress=progress,
+        executor=executor,
     )
 
 
