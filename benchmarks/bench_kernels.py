@@ -9,14 +9,18 @@ the recorded one: bit for bit (``identical``), or where it differs, the largest 
 relative difference.
 
 Record with one version of the code, replay with another, and the check says whether the
-outputs changed; the CPU seconds of both replays, taken side by side, say how much faster. The
-figures of ``docs/reconstruction.md`` ("Kernel costs")::
+outputs changed; the CPU seconds of both replays, taken side by side, say how much faster.
+``PYTHONPATH`` picks the version (the script itself works with both). The figures of
+``docs/reconstruction.md`` ("Kernel costs"), with the old code checked out in ``/work/main``::
 
-    git stash; PYTHONPATH=. python benchmarks/bench_kernels.py capture /tmp/p69/cap \\
-        pipelines/paper69.toml /tmp/kernels.pkl --frames 2; git stash pop   # (old code)
-    PYTHONPATH=. python benchmarks/bench_kernels.py time /tmp/kernels.pkl
+    PYTHONPATH=/work/main python benchmarks/bench_kernels.py capture /tmp/p69/cap \
+        pipelines/paper69.toml /tmp/kernels.pkl --frames 2          # records the old outputs
+    PYTHONPATH=/work/main python benchmarks/bench_kernels.py time /tmp/kernels.pkl   # before
+    PYTHONPATH=. python benchmarks/bench_kernels.py time /tmp/kernels.pkl            # after
 
-The capture step costs one reconstruction of ``--frames`` frames.
+The capture step costs one reconstruction of ``--frames`` frames and writes about 1 GB (the
+triangulation calls hold (C, N, 2) observations of up to 100k points). The recorded outputs are
+copies taken when each call returns (callers may modify them afterwards).
 """
 
 from __future__ import annotations

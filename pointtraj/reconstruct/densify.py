@@ -496,8 +496,11 @@ def _nearest(mask: np.ndarray, angles: np.ndarray, k: int) -> np.ndarray:
     if k <= 0 or mask.shape[1] == 0 or int(mask.sum(axis=0).max()) <= k:
         return mask
     key = np.where(mask, angles[:, None], np.inf)
-    rank = np.argsort(np.argsort(key, axis=0, kind="stable"), axis=0, kind="stable")
-    return mask & (rank < k)
+    # the first k of each column's stable order (one sort; ranks below k, as before)
+    first = np.argsort(key, axis=0, kind="stable")[:k]  # (k, n)
+    near = np.zeros(mask.shape, bool)
+    np.put_along_axis(near, first, True, axis=0)
+    return mask & near
 
 
 def _densify_camera(

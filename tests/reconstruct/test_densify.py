@@ -197,3 +197,16 @@ def test_zscore_in_place_equals_the_copy():
     np.testing.assert_array_equal(z2, z)
     np.testing.assert_array_equal(std2, std)
     np.testing.assert_allclose(np.mean(z[:3] ** 2, axis=-1), 1.0, rtol=1e-5)
+
+
+def test_nearest_keeps_the_k_nearest_observing_cameras_ties_by_index():
+    from pointtraj.reconstruct.densify import _nearest
+
+    rng = np.random.default_rng(1)
+    mask = rng.random((9, 300)) < 0.5
+    angles = rng.integers(0, 4, 9).astype(float)  # many ties
+    got = _nearest(mask, angles, 2)
+    for col in range(mask.shape[1]):
+        cams = np.flatnonzero(mask[:, col])
+        want = cams[np.argsort(angles[cams], kind="stable")[:2]]  # by angle, then index
+        assert np.flatnonzero(got[:, col]).tolist() == sorted(want.tolist())
