@@ -23,7 +23,7 @@ import numpy as np
 from .errors import ValidationError, check_array
 from .geometry import (
     N_DIST,
-    _no_distortion,
+    _no_distortion_xy,
     distort_normalized,
     rodrigues_from_rotation,
     rotation_from_rodrigues,
@@ -420,15 +420,19 @@ class CameraRig(Sequence[Camera]):
         cam = np.matmul(X[None], self.R.transpose(0, 2, 1))  # (C, N, 3)
         cam -= RC[:, None, :]
         depth = cam[..., 2]
+        front = np.where(depth > 0, depth, np.nan)
         with np.errstate(divide="ignore", invalid="ignore"):
-            xy = cam[..., :2] / np.where(depth > 0, depth, np.nan)[..., None]  # (C, N, 2)
-        x, y = xy[..., 0], xy[..., 1]
+            x = cam[..., 0] / front  # (C, N) each
+            y = cam[..., 1] / front
         r2 = x * x + y * y  # (C, N), as the sum over the last axis of xy**2
-        # no lens distortion: skip its arithmetic (the same values, geometry._no_distortion)
-        xy_d = distort_normalized(xy, self.dist) if distorted else _no_distortion(xy, r2)
+        if distorted:
+            xy_d = distort_normalized(np.stack([x, y], axis=-1), self.dist)  # (C, N, 2)
+            xd, yd = xy_d[..., 0], xy_d[..., 1]
+        else:  # no lens distortion: skip its arithmetic (the same values)
+            xd, yd = _no_distortion_xy(x, y, r2)
         K = self.K
-        u = K[:, None, 0, 0] * xy_d[..., 0] + K[:, None, 0, 1] * xy_d[..., 1] + K[:, None, 0, 2]
-        v = K[:, None, 1, 1] * xy_d[..., 1] + K[:, None, 1, 2]
+        u = K[:, None, 0, 0] * xd + K[:, None, 0, 1] * yd + K[:, None, 0, 2]
+        v = K[:, None, 1, 1] * yd + K[:, None, 1, 2]
         pixels = np.stack([u, v], axis=-1)  # (C, N, 2)
         w = self.sizes[:, None, 0]
         h = self.sizes[:, None, 1]

@@ -308,14 +308,22 @@ def _no_distortion(xy: np.ndarray, r2: np.ndarray) -> np.ndarray:
     -------
     (..., N, 2) float ndarray
     """
-    out = np.array(xy, dtype=float)
+    xd, yd = _no_distortion_xy(xy[..., 0], xy[..., 1], r2)
+    return np.stack([xd, yd], axis=-1)
+
+
+def _no_distortion_xy(
+    x: np.ndarray, y: np.ndarray, r2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_no_distortion` on separate coordinates ``x``, ``y`` (...,); new arrays."""
+    xd, yd = np.array(x, dtype=float), np.array(y, dtype=float)
     with np.errstate(invalid="ignore"):
         odd = ~(r2 < 1e300)  # NaN, inf, or near overflow in r2 + 2 x^2
     if np.any(odd):
-        x, y = xy[..., 0][odd], xy[..., 1][odd]
         with np.errstate(invalid="ignore", over="ignore"):
-            out[odd] = _distort(x, y, r2[odd], np.zeros(N_DIST))
-    return out
+            model = _distort(x[odd], y[odd], r2[odd], np.zeros(N_DIST))
+        xd[odd], yd[odd] = model[:, 0], model[:, 1]
+    return xd, yd
 
 
 def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray) -> np.ndarray:
