@@ -564,6 +564,8 @@ def _guided_matches(
         dist = acc.astype(np.int64)  # <= 256 with the last word
         dist += np.bitwise_count(words_a[3][own] ^ ext_words[3][pos])
         # (distance, position) keys: the minimum is the nearest, the first of equals
+        if own.size >= 1 << _POS_BITS:  # cannot happen below ~1M keypoints per image
+            raise ValidationError(f"guided matching: {own.size} candidates in one chunk")
         key = dist << _POS_BITS
         key |= np.arange(own.size)
         best_key = np.minimum.reduceat(key, grp_start)  # (G,)
