@@ -13,6 +13,7 @@ live in :mod:`pointtraj.geometry` and are re-exported here.
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -22,6 +23,7 @@ import numpy as np
 from .errors import ValidationError, check_array
 from .geometry import (
     N_DIST,
+    _no_distortion_xy,
     distort_normalized,
     rodrigues_from_rotation,
     rotation_from_rodrigues,
@@ -414,16 +416,23 @@ class CameraRig(Sequence[Camera]):
         """
         X = check_array("points", points, (None, 3))
         # R (X - C) = X R^T - R C; a batched matmul is 5x faster than the einsum.
-        RC = np.einsum("cij,cj->ci", self.R, self.C)  # (C, 3)
-        cam = np.matmul(X[None], self.R.transpose(0, 2, 1)) - RC[:, None, :]  # (C, N, 3)
+        RC, distorted = self._projection_constants
+        cam = np.matmul(X[None], self.R.transpose(0, 2, 1))  # (C, N, 3)
+        cam -= RC[:, None, :]
         depth = cam[..., 2]
+        front = np.where(depth > 0, depth, np.nan)
         with np.errstate(divide="ignore", invalid="ignore"):
-            xy = cam[..., :2] / np.where(depth > 0, depth, np.nan)[..., None]  # (C, N, 2)
-        r2 = np.sum(xy**2, axis=-1)  # (C, N)
-        xy_d = distort_normalized(xy, self.dist)  # (C, N, 2)
+            x = cam[..., 0] / front  # (C, N) each
+            y = cam[..., 1] / front
+        r2 = x * x + y * y  # (C, N), as the sum over the last axis of xy**2
+        if distorted:
+            xy_d = distort_normalized(np.stack([x, y], axis=-1), self.dist)  # (C, N, 2)
+            xd, yd = xy_d[..., 0], xy_d[..., 1]
+        else:  # no lens distortion: skip its arithmetic (the same values)
+            xd, yd = _no_distortion_xy(x, y, r2)
         K = self.K
-        u = K[:, None, 0, 0] * xy_d[..., 0] + K[:, None, 0, 1] * xy_d[..., 1] + K[:, None, 0, 2]
-        v = K[:, None, 1, 1] * xy_d[..., 1] + K[:, None, 1, 2]
+        u = K[:, None, 0, 0] * xd + K[:, None, 0, 1] * yd + K[:, None, 0, 2]
+        v = K[:, None, 1, 1] * yd + K[:, None, 1, 2]
         pixels = np.stack([u, v], axis=-1)  # (C, N, 2)
         w = self.sizes[:, None, 0]
         h = self.sizes[:, None, 1]
@@ -437,6 +446,13 @@ class CameraRig(Sequence[Camera]):
                 & (v < h - 0.5)
             )
         return Projection(pixels, depth, in_image)
+
+    @functools.cached_property
+    def _projection_constants(self) -> tuple[np.ndarray, bool]:
+        """``R C`` (C, 3) and whether any camera has lens distortion, computed once."""
+        RC = np.einsum("cij,cj->ci", self.R, self.C)
+        RC.flags.writeable = False
+        return RC, bool(np.any(self.dist))
 
     def undistort_pixels(self, pixels: object) -> np.ndarray:
         """Remove lens distortion, camera by camera.

@@ -275,13 +275,55 @@ def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
         Distorted normalised coordinates.
     """
     d = np.asarray(dist, dtype=float)[..., None, :]  # (..., 1, 8)
-    k1, k2, p1, p2, k3, k4, k5, k6 = (d[..., i] for i in range(N_DIST))
     x, y = xy[..., 0], xy[..., 1]
     r2 = x * x + y * y
+    if not np.any(d):
+        return _no_distortion(xy, r2)
+    return _distort(x, y, r2, d)
+
+
+def _distort(x: np.ndarray, y: np.ndarray, r2: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The distortion model of :func:`distort_normalized` (``d`` (..., 1, 8) or (8,))."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = (d[..., i] for i in range(N_DIST))
     radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
     xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
     yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
     return np.stack([xd, yd], axis=-1)
+
+
+def _no_distortion(xy: np.ndarray, r2: np.ndarray) -> np.ndarray:
+    """:func:`distort_normalized` with all coefficients zero, without its arithmetic.
+
+    The model's terms are then ``x * 1 + 0``: a copy of ``xy``, bit for bit (up to the sign of
+    a zero), wherever they are finite. Where ``r2 = x^2 + y^2`` is NaN or large enough that a
+    term may overflow (``0 * inf`` is NaN), the model itself is evaluated.
+
+    Parameters
+    ----------
+    xy : (..., N, 2) float ndarray
+    r2 : (..., N) float ndarray
+        ``x * x + y * y``.
+
+    Returns
+    -------
+    (..., N, 2) float ndarray
+    """
+    xd, yd = _no_distortion_xy(xy[..., 0], xy[..., 1], r2)
+    return np.stack([xd, yd], axis=-1)
+
+
+def _no_distortion_xy(
+    x: np.ndarray, y: np.ndarray, r2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_no_distortion` on separate coordinates ``x``, ``y`` (...,); new arrays."""
+    xd, yd = np.array(x, dtype=float), np.array(y, dtype=float)
+    with np.errstate(invalid="ignore"):
+        odd = ~(r2 < 1e300)  # NaN, inf, or near overflow in r2 + 2 x^2
+    if np.any(odd):
+        with np.errstate(invalid="ignore", over="ignore"):
+            model = _distort(x[odd], y[odd], r2[odd], np.zeros(N_DIST))
+        xd[odd], yd[odd] = model[:, 0], model[:, 1]
+    return xd, yd
 
 
 def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray) -> np.ndarray:

@@ -225,3 +225,23 @@ def test_undistort_solves_far_points_again(monkeypatch):
     np.testing.assert_allclose(undistort_normalized(xy_d, d), xy, atol=1e-12)
     monkeypatch.setattr(geometry, "_UNDISTORT_FIXED_POINT_SLOW", geometry._UNDISTORT_FIXED_POINT)
     assert np.abs(undistort_normalized(xy_d, d)[0] - xy[0]).max() > 1e-3
+
+
+def test_zero_distortion_shortcut_equals_the_model_bit_for_bit():
+    """With all coefficients zero the model is skipped; the values are the model's, including
+    NaN rows, NaN in one coordinate, infinities and radii near overflow."""
+    rng = np.random.default_rng(3)
+    xy = rng.normal(size=(4, 500, 2)) * 10.0 ** rng.integers(-3, 160, (4, 500, 2))
+    xy[0, :5] = np.nan
+    xy[1, :5, 0] = np.nan
+    xy[2, :5] = np.inf
+    xy[3, :3] = [1e151, 1e151]  # r2 finite, r2 + 2 x^2 still finite
+    xy[3, 3:6] = [1e154, 0.0]  # r2 overflows
+    zeros = np.zeros((4, 8))
+    x, y = xy[..., 0], xy[..., 1]
+    with np.errstate(invalid="ignore", over="ignore"):
+        got = geometry.distort_normalized(xy, zeros)
+        model = geometry._distort(x, y, x * x + y * y, zeros[:, None, :])
+    np.testing.assert_array_equal(got, model)
+    assert np.isnan(got[1, :5]).all() and np.isnan(got[2, :5]).all()
+    assert np.isfinite(got[3, :3]).all() and np.isnan(got[3, 3:6, 0]).all()

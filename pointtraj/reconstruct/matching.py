@@ -14,6 +14,7 @@ keeps, per camera, the keypoint closest to the triangulated point.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,7 @@ __all__ = [
     "MultiViewTracks",
     "detect_features",
     "match_pair",
+    "match_pairs",
     "epipolar_distances",
     "build_tracks",
     "resolve_ambiguous",
@@ -252,8 +254,15 @@ def epipolar_distances(
     """
     pa = check_array("pixels_a", pixels_a, (None, 2))
     pb = check_array("pixels_b", pixels_b, (pa.shape[0], 2))
-    xa = _normalized(rig, cam_a, pa)  # (N, 2)
-    xb = _normalized(rig, cam_b, pb)
+    return _epipolar_distances(
+        rig, cam_a, cam_b, _normalized(rig, cam_a, pa), _normalized(rig, cam_b, pb)
+    )
+
+
+def _epipolar_distances(
+    rig: CameraRig, cam_a: int, cam_b: int, xa: np.ndarray, xb: np.ndarray
+) -> np.ndarray:
+    """:func:`epipolar_distances` of undistorted normalised coordinates ``xa``, ``xb`` (N, 2)."""
     line_b, hb, scale_a, scale_b = _epipolar_terms(rig, cam_a, cam_b, xa, xb)
     alg = np.abs(np.sum(line_b * hb, axis=1))  # (N,) |x_b^T E x_a|
     with np.errstate(invalid="ignore"):  # 0 * inf at an epipole: NaN, as 0 / 0 was
@@ -304,6 +313,8 @@ def match_pair(
     features_a: Features,
     features_b: Features,
     config: MatchingConfig | None = None,
+    *,
+    terms: tuple[_CameraTerms, _CameraTerms] | None = None,
 ) -> np.ndarray:
     """Brute-force Hamming matches filtered by GMS and the epipolar constraint.
 
@@ -314,6 +325,9 @@ def match_pair(
         Camera indices of the two images.
     features_a, features_b : Features
     config : MatchingConfig, optional
+    terms : (_CameraTerms, _CameraTerms), optional
+        The two cameras' per-image terms (:func:`_camera_terms`); :func:`match_frame` computes
+        them once per image instead of once per pair. The result is the same.
 
     Returns
     -------
@@ -326,8 +340,10 @@ def match_pair(
     if len(features_a) < 2 or len(features_b) < 2:
         return np.zeros((0, 2), np.int64)
     if cfg.guided:
-        pairs, dist = _guided_matches(rig, cam_a, cam_b, features_a, features_b, cfg)
-        raw = [cv2.DMatch(int(q), int(t), float(d)) for (q, t), d in zip(pairs.tolist(), dist)]
+        if terms is None:
+            terms = (_camera_terms(rig, cam_a, features_a), _camera_terms(rig, cam_b, features_b))
+        pairs, dist = _guided_matches(rig, cam_a, cam_b, features_a, features_b, cfg, terms=terms)
+        raw = [cv2.DMatch(q, t, float(d)) for (q, t), d in zip(pairs.tolist(), dist.tolist())]
     else:
         raw = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=cfg.cross_check).match(
             features_a.descriptors, features_b.descriptors
@@ -349,9 +365,12 @@ def match_pair(
     if not good:
         return np.zeros((0, 2), np.int64)
     pairs = np.array([(m.queryIdx, m.trainIdx) for m in good], dtype=np.int64)  # (Q, 2)
-    d = epipolar_distances(
-        rig, cam_a, cam_b, features_a.pixels[pairs[:, 0]], features_b.pixels[pairs[:, 1]]
-    )
+    if terms is not None:  # the same values, element by element
+        d = _epipolar_distances(rig, cam_a, cam_b, terms[0].x[pairs[:, 0]], terms[1].x[pairs[:, 1]])
+    else:
+        d = epipolar_distances(
+            rig, cam_a, cam_b, features_a.pixels[pairs[:, 0]], features_b.pixels[pairs[:, 1]]
+        )
     keep = d <= cfg.epipolar_px
     logger.debug(
         "pair %d-%d: %d putative, %d GMS, %d epipolar",
@@ -364,7 +383,40 @@ def match_pair(
     return pairs[keep]
 
 
-def _epipolar_angles(rig: CameraRig, cam: int, x: np.ndarray, basis: np.ndarray) -> tuple:
+@dataclass(frozen=True)
+class _CameraTerms:
+    """Per-camera quantities of guided matching, computed once per image and reused by every
+    pair the camera takes part in.
+
+    Attributes
+    ----------
+    x : (F, 2) float64 ndarray
+        Undistorted normalised coordinates of the keypoints.
+    h : (F, 3) float64 ndarray
+        The same, homogeneous.
+    rays : (F, 3) float64 ndarray
+        Unit world directions of the keypoints' rays.
+    words : (4, F) uint64 ndarray
+        The descriptors as four 64-bit words, one contiguous row per word.
+    """
+
+    x: np.ndarray
+    h: np.ndarray
+    rays: np.ndarray
+    words: np.ndarray
+
+
+def _camera_terms(rig: CameraRig, cam: int, features: Features) -> _CameraTerms:
+    """:class:`_CameraTerms` of one camera's features."""
+    x = _normalized(rig, cam, features.pixels.astype(np.float64))
+    h = np.concatenate([x, np.ones((len(x), 1))], axis=1)  # (F, 3)
+    d = h @ rig.R[cam]  # (F, 3) = (R^T h)^T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    words = np.ascontiguousarray(features.descriptors).view(np.uint64)  # (F, 4)
+    return _CameraTerms(x, h, d, np.ascontiguousarray(words.T))
+
+
+def _epipolar_angles(rays: np.ndarray, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Epipolar-plane angle and the sine of the ray's angle to the baseline, per keypoint.
 
     Every epipolar plane of a camera pair contains the baseline ``u``; its normal
@@ -373,10 +425,8 @@ def _epipolar_angles(rig: CameraRig, cam: int, x: np.ndarray, basis: np.ndarray)
 
     Parameters
     ----------
-    rig : CameraRig
-    cam : int
-    x : (N, 2) float ndarray
-        Undistorted normalised coordinates.
+    rays : (N, 3) float ndarray
+        Unit world directions of the keypoints' rays (:class:`_CameraTerms`).
     basis : (3, 3) float ndarray
         Rows ``u, e1, e2``: the unit baseline and two unit vectors orthogonal to it.
 
@@ -387,10 +437,11 @@ def _epipolar_angles(rig: CameraRig, cam: int, x: np.ndarray, basis: np.ndarray)
     sin_theta : (N,) float ndarray
         Sine of the angle between the ray and the baseline.
     """
-    d = np.concatenate([x, np.ones((len(x), 1))], axis=1) @ rig.R[cam]  # (N, 3) = (R^T h)^T
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    n = np.cross(basis[0], d)  # (N, 3), |n| = sin(theta)
+    n = np.cross(basis[0], rays)  # (N, 3), |n| = sin(theta)
     return np.arctan2(n @ basis[2], n @ basis[1]), np.linalg.norm(n, axis=1)
+
+
+_POS_BITS = 32  # candidate positions in the low bits of a (distance, position) sort key
 
 
 def _guided_matches(
@@ -400,9 +451,10 @@ def _guided_matches(
     features_a: Features,
     features_b: Features,
     cfg: MatchingConfig,
-    chunk: int = 4096,
+    chunk: int = 1024,
     margin: float = 1.25,
     max_window: float = 0.05,
+    terms: tuple[_CameraTerms, _CameraTerms] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Nearest neighbours within the epipolar band, with the ratio test (vectorised).
 
@@ -412,10 +464,25 @@ def _guided_matches(
     subtends at most about ``1 / f``; at most ``max_window`` radians, so keypoints near the
     epipole get no more candidates than that), and compares its descriptor with those that
     pass :func:`epipolar_distances`' test exactly (``max(d_a, d_b) <= epipolar_px``, computed
-    from per-keypoint epipolar lines). Hamming distances are popcounts of 64-bit words; the
-    nearest and second nearest per keypoint come from ``minimum.reduceat`` over its candidates
-    (no sort). With ``cfg.cross_check`` only mutual nearest neighbours within the bands are
-    kept.
+    from per-keypoint epipolar lines). A keypoint's candidates are a contiguous run of b's
+    sorted keypoints, so b's per-keypoint terms are laid out in that order once and read in
+    runs, and a's are repeated rather than gathered. Hamming distances are popcounts of 64-bit
+    words; the nearest (the first of equals in the run) and second nearest per keypoint come
+    from ``minimum.reduceat`` over (distance, position) keys (no sort). With
+    ``cfg.cross_check`` only mutual nearest neighbours within the bands are kept.
+
+    Parameters
+    ----------
+    rig : CameraRig
+    cam_a, cam_b : int
+    features_a, features_b : Features
+    cfg : MatchingConfig
+    chunk : int
+        Keypoints of a per batch (bounds the candidate arrays).
+    margin, max_window : float
+        The search window (above).
+    terms : (_CameraTerms, _CameraTerms), optional
+        The two cameras' terms (:func:`_camera_terms`), when the caller keeps them per image.
 
     Returns
     -------
@@ -433,22 +500,35 @@ def _guided_matches(
     e1 = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     basis = np.stack([u, e1, np.cross(u, e1)])
-    xa = _normalized(rig, cam_a, features_a.pixels.astype(np.float64))
-    xb = _normalized(rig, cam_b, features_b.pixels.astype(np.float64))
-    phi_a, sin_a = _epipolar_angles(rig, cam_a, xa, basis)
-    phi_b, _ = _epipolar_angles(rig, cam_b, xb, basis)
+    ta, tb = terms or (
+        _camera_terms(rig, cam_a, features_a),
+        _camera_terms(rig, cam_b, features_b),
+    )
+    phi_a, sin_a = _epipolar_angles(ta.rays, basis)
+    phi_b, _ = _epipolar_angles(tb.rays, basis)
     # search window: the band's angular half-width seen from a (a pixel subtends about 1 / f)
     tol_a = cfg.epipolar_px / rig.K[cam_a, 0, 0] / np.maximum(sin_a, 1e-6)
     window = np.minimum(margin * tol_a, max_window)
     # exact band test per candidate (epipolar_distances' terms, per keypoint)
-    line_b, hb, scale_a, scale_b = _epipolar_terms(rig, cam_a, cam_b, xa, xb)
+    E = _essential(rig, cam_a, cam_b)
+    line_b = ta.h @ E.T  # (Na, 3) a's epipolar lines in image b
+    line_a = tb.h @ E  # (Nb, 3) b's epipolar lines in image a
+    with np.errstate(divide="ignore"):
+        scale_a = rig.K[cam_b, 0, 0] / np.hypot(line_b[:, 0], line_b[:, 1])
+        scale_b = rig.K[cam_a, 0, 0] / np.hypot(line_a[:, 0], line_a[:, 1])
     nb = phi_b.size
     order = np.argsort(phi_b)
-    # wrap around ±π: the sorted angles with copies shifted by ∓2π on either side
+    # b's terms in angle order; wrap around ±π with copies shifted by ∓2π on either side
     ext_phi = np.concatenate([phi_b[order] - 2 * np.pi, phi_b[order], phi_b[order] + 2 * np.pi])
     ext_idx = np.tile(order, 3)
-    words_a = np.ascontiguousarray(features_a.descriptors).view(np.uint64)  # (Na, 4)
-    words_b = np.ascontiguousarray(features_b.descriptors).view(np.uint64)
+    ext_x = np.tile(tb.x[order, 0], 3)
+    ext_y = np.tile(tb.x[order, 1], 3)
+    ext_scale = np.tile(scale_b[order], 3)
+    ext_words = np.tile(tb.words[:, order], 3)  # (4, 3 Nb)
+    la = [np.ascontiguousarray(line_b[:, k]) for k in range(3)]
+    words_a = ta.words
+    eps = cfg.epipolar_px
+    low = (1 << _POS_BITS) - 1
     big = np.iinfo(np.int64).max
     out_a, out_b, out_d, mutual_cand = [], [], [], []
     for s in range(0, phi_a.size, chunk):  # bounded candidate arrays
@@ -458,36 +538,48 @@ def _guided_matches(
         nz = np.flatnonzero(cnt > 0)
         if nz.size == 0:
             continue
+        rows = s + nz
         cnt, lo = cnt[nz], lo[nz]
         total = int(cnt.sum())
         starts = np.cumsum(cnt) - cnt
-        own = np.repeat(s + nz, cnt)
-        pos = np.repeat(lo - starts, cnt) + np.arange(total)
-        trn = ext_idx[pos]
-        # inside the band in both images: max(d_a, d_b) <= epipolar_px
-        alg = np.abs(np.einsum("ij,ij->i", line_b[own], hb[trn]))
-        inside = alg * np.fmax(scale_a[own], scale_b[trn]) <= cfg.epipolar_px
-        own, trn = own[inside], trn[inside]
+        pos = np.repeat(lo - starts, cnt) + np.arange(total)  # (T,) into the ext arrays
+        # inside the band in both images: max(d_a, d_b) <= epipolar_px. The products are summed
+        # in einsum's order ((l0 x + l2) + l1 y, hb's last entry being 1): the same bits.
+        alg = np.repeat(la[0][rows], cnt) * ext_x[pos]
+        alg += np.repeat(la[2][rows], cnt)
+        alg += np.repeat(la[1][rows], cnt) * ext_y[pos]
+        np.abs(alg, out=alg)
+        with np.errstate(invalid="ignore"):  # 0 * inf at an epipole: NaN, outside
+            alg *= np.fmax(np.repeat(scale_a[rows], cnt), ext_scale[pos])
+        inside = alg <= eps
+        own = np.repeat(rows, cnt)[inside]
+        pos = pos[inside]
         if own.size == 0:
             continue
-        starts = np.flatnonzero(np.r_[True, own[1:] != own[:-1]])  # (G,) one group per a
-        cnt = np.diff(np.r_[starts, own.size])
-        dist = np.bitwise_count(words_a[own] ^ words_b[trn]).sum(axis=1, dtype=np.int64)
-        best = np.minimum.reduceat(dist, starts)  # (G,)
-        # position of the (first) best of each group, then the second best without it
-        hit = np.flatnonzero(dist == np.repeat(best, cnt))
-        grp = np.repeat(np.arange(starts.size), cnt)[hit]
-        first = np.r_[True, grp[1:] != grp[:-1]]
-        best_pos = hit[first]
-        masked = dist.copy()
-        masked[best_pos] = big
-        second = np.minimum.reduceat(masked, starts)
-        keep = (cnt == 1) | (best < cfg.ratio * second)
-        out_a.append(own[best_pos[keep]])
-        out_b.append(trn[best_pos[keep]])
-        out_d.append(best[keep])
+        grp_start = np.flatnonzero(np.r_[True, own[1:] != own[:-1]])  # (G,) one group per a
+        grp_cnt = np.diff(np.r_[grp_start, own.size])
+        acc = np.bitwise_count(words_a[0][own] ^ ext_words[0][pos])  # uint8, <= 64 each
+        for k in (1, 2):
+            acc += np.bitwise_count(words_a[k][own] ^ ext_words[k][pos])
+        dist = acc.astype(np.int64)  # <= 256 with the last word
+        dist += np.bitwise_count(words_a[3][own] ^ ext_words[3][pos])
+        # (distance, position) keys: the minimum is the nearest, the first of equals
+        if own.size >= 1 << _POS_BITS:  # cannot happen below ~1M keypoints per image
+            raise ValidationError(f"guided matching: {own.size} candidates in one chunk")
+        key = dist << _POS_BITS
+        key |= np.arange(own.size)
+        best_key = np.minimum.reduceat(key, grp_start)  # (G,)
+        best = best_key >> _POS_BITS
+        best_pos = best_key & low
         if cfg.cross_check:
-            mutual_cand.append((own, trn, dist))
+            mutual_cand.append((own, ext_idx[pos], dist))
+        key[best_pos] = big  # the second nearest without the first
+        second = np.minimum.reduceat(key, grp_start) >> _POS_BITS
+        keep = (grp_cnt == 1) | (best < cfg.ratio * second)
+        sel = best_pos[keep]
+        out_a.append(own[sel])
+        out_b.append(ext_idx[pos[sel]])
+        out_d.append(best[keep])
     if not out_a:
         return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
     pairs = np.stack([np.concatenate(out_a), np.concatenate(out_b)], axis=1)
@@ -625,6 +717,43 @@ def resolve_ambiguous(rig: CameraRig, tracks: MultiViewTracks, points: np.ndarra
     return obs
 
 
+def match_pairs(
+    rig: CameraRig,
+    features: Sequence[Features],
+    edges: np.ndarray,
+    config: MatchingConfig | None = None,
+) -> list[np.ndarray]:
+    """:func:`match_pair` over camera pairs, each image's guided-matching terms computed once.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    features : sequence of C Features
+    edges : (E, 2) int ndarray
+        Camera pairs.
+    config : MatchingConfig, optional
+
+    Returns
+    -------
+    list of E (Q_e, 2) int64 ndarrays
+        Each pair's matches, as :func:`match_pair` returns them.
+    """
+    cfg = config or MatchingConfig()
+    terms: dict[int, _CameraTerms] = {}
+    if cfg.guided:  # once per image, not once per pair (undistortion, rays, descriptor words)
+        terms = {
+            int(c): _camera_terms(rig, int(c), features[c])
+            for c in np.unique(edges)
+            if len(features[c]) >= 2
+        }
+    out = []
+    for a, b in np.asarray(edges, dtype=np.int64).reshape(-1, 2).tolist():
+        pair_terms = (terms[a], terms[b]) if a in terms and b in terms else None
+        out.append(match_pair(rig, a, b, features[a], features[b], cfg, terms=pair_terms))
+    return out
+
+
 def match_frame(
     rig: CameraRig,
     images: list[np.ndarray],
@@ -660,7 +789,7 @@ def match_frame(
                 f"the rig says {w}x{h}"
             )
     feats = [detect_features(img, cfg) for img in images]
-    matches = [match_pair(rig, int(a), int(b), feats[a], feats[b], cfg) for a, b in edges]
+    matches = match_pairs(rig, feats, edges, cfg)
     tracks = build_tracks(len(rig), feats, edges, matches)
     logger.info(
         "matched %d pairs: %d features, %d matches, %d tracks (%d ambiguous)",

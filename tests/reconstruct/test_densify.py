@@ -181,3 +181,32 @@ def test_partners_are_the_cameras_nearest_the_reference():
     np.testing.assert_array_equal(_nearest(mask, angles, 0), mask)  # 0: all
     with pytest.raises(ValidationError, match="max_partners"):
         DensifyConfig(max_partners=-1)
+
+
+def test_zscore_in_place_equals_the_copy():
+    from pointtraj.reconstruct.densify import _zscore
+
+    rng = np.random.default_rng(0)
+    patches = rng.uniform(0, 255, (50, 7, 49)).astype(np.float32)
+    patches[3, 2] = 17.0  # flat: NaN z-scores, std 0
+    patches[4, 1, 5] = np.nan
+    z, std = _zscore(patches)
+    work = patches.copy()
+    z2, std2 = _zscore(work, overwrite=True)
+    assert z2 is work  # the caller's buffer
+    np.testing.assert_array_equal(z2, z)
+    np.testing.assert_array_equal(std2, std)
+    np.testing.assert_allclose(np.mean(z[:3] ** 2, axis=-1), 1.0, rtol=1e-5)
+
+
+def test_nearest_keeps_the_k_nearest_observing_cameras_ties_by_index():
+    from pointtraj.reconstruct.densify import _nearest
+
+    rng = np.random.default_rng(1)
+    mask = rng.random((9, 300)) < 0.5
+    angles = rng.integers(0, 4, 9).astype(float)  # many ties
+    got = _nearest(mask, angles, 2)
+    for col in range(mask.shape[1]):
+        cams = np.flatnonzero(mask[:, col])
+        want = cams[np.argsort(angles[cams], kind="stable")[:2]]  # by angle, then index
+        assert np.flatnonzero(got[:, col]).tolist() == sorted(want.tolist())
