@@ -551,8 +551,10 @@ def _label_locked(
         frames = sorted(int(p.stem) for p in wf.clouds.glob("*.ply") if p.stem.isdigit())
         frames = [t for t in frames if t < trajectories.num_frames]
         write_text_atomic(wf.labels_pending, f"{len(frames)} clouds being relabelled\n")
+        # the clouds keep the visibility form the reconstruction wrote them in
+        form = (wf.run_identity().get("reconstruct") or {}).get("cloud_visibility", "full")
         for i, t in enumerate(frames):
-            trajectories.write_frame_ply(t, wf.cloud(t), labels=result.labels)
+            trajectories.write_frame_ply(t, wf.cloud(t), visibility_form=form, labels=result.labels)
             _report(progress, "label: clouds", i + 1, len(frames))
     save_labels(result, wf.labels, trajectories.first_frame, trajectories.lengths)
     wf.labels_pending.unlink(missing_ok=True)

@@ -2,8 +2,10 @@
 
 :func:`reconstruct_capture` streams a capture frame by frame through the :class:`~.track.Tracker`
 into a work folder, writing each frame's point cloud and tracker state atomically so that an
-interrupted run resumes from the last complete frame, and assembles the ragged
-:class:`~pointtraj.trajectories.Trajectories` store (:func:`assemble_trajectories`).
+interrupted run resumes from the last complete frame (the files: :mod:`.framestore`), and
+assembles the ragged :class:`~pointtraj.trajectories.Trajectories` store from the per-frame
+record files (:meth:`.framestore.FrameStore.assemble`; :func:`assemble_trajectories` does the
+same from records in memory).
 """
 
 from __future__ import annotations
@@ -15,14 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import save_npz_atomic
 from ..errors import FileFormatError, ValidationError
-from ..npzfile import load_npz
 from ..trajectories import Trajectories, frame_pointcloud, write_cloud_ply
 from .config import ReconstructConfig
+from .framestore import FrameStore
 from .stitch import stitch_trajectories
 from .survive import trim_one_view_tails
-from .track import FrameRecord, Tracker, TrackState
+from .track import FrameRecord, Tracker
 
 __all__ = [
     "assemble_trajectories",
@@ -30,9 +31,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-STATE_FORMAT_VERSION = 1
-
 
 # -- assembling the store ---------------------------------------------------------------------
 
@@ -86,80 +84,9 @@ def assemble_trajectories(
 # -- work folder streaming --------------------------------------------------------------------
 
 
-def _state_path(work: Path, t: int) -> Path:
-    return work / "state" / f"{t:06d}.npz"
-
-
-def _save_state(path: Path, record: FrameRecord, state: TrackState) -> None:
-    save_npz_atomic(
-        path,
-        format_version=np.int64(STATE_FORMAT_VERSION),
-        frame=np.int64(record.frame),
-        rec_ids=record.ids,
-        rec_xyz=record.xyz,
-        rec_visibility=record.visibility,
-        rec_error=record.error,
-        rec_color=record.color,
-        rec_num_new=np.int64(record.num_new),
-        live_ids=state.ids,
-        live_xyz=state.xyz,
-        live_visibility=state.visibility,
-        live_pixels=state.pixels,
-        live_lone=state.lone,
-        next_id=np.int64(state.next_id),
-    )
-
-
-_STATE_KEYS = (
-    "frame",
-    "rec_ids",
-    "rec_xyz",
-    "rec_visibility",
-    "rec_error",
-    "rec_color",
-    "rec_num_new",
-    "live_ids",
-    "live_xyz",
-    "live_visibility",
-    "live_pixels",
-    "next_id",
-)
-
-
-def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
-    d = load_npz(path, _STATE_KEYS, "a tracker state")
-    try:
-        t = int(d["frame"])
-        rec = FrameRecord(
-            t,
-            d["rec_ids"],
-            d["rec_xyz"],
-            d["rec_visibility"],
-            d["rec_error"],
-            d["rec_color"],
-            int(d["rec_num_new"]),
-        )
-        st = TrackState(
-            t,
-            d["live_ids"],
-            d["live_xyz"],
-            d["live_visibility"],
-            d["live_pixels"],
-            int(d["next_id"]),
-            d.get("live_lone"),  # absent in the states of older versions
-        )
-    except (ValueError, TypeError) as exc:
-        raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
-    if st.visibility.shape[1:] != (num_cameras,) or rec.visibility.shape[1:] != (num_cameras,):
-        raise FileFormatError(path, f"tracker state is not for {num_cameras} cameras")
-    if st.lone.shape != st.ids.shape:
-        raise FileFormatError(
-            path, f"tracker state: live_lone has {st.lone.shape}, expected {st.ids.shape}"
-        )
-    return rec, st
-
-
-def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
+def write_frame_cloud(
+    path: str | os.PathLike, record: FrameRecord, visibility_form: str = "full"
+) -> None:
     """Write one frame's points as a PLY (:func:`~pointtraj.trajectories.frame_pointcloud`'s
     attributes, ``track_id`` as int32).
 
@@ -167,8 +94,13 @@ def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
     ----------
     path : path-like
     record : FrameRecord
+    visibility_form : {"full", "uint8", "sparse"}
+        :data:`~pointtraj.trajectories.CLOUD_VISIBILITY`.
     """
-    write_cloud_ply(path, frame_pointcloud(record.xyz, record.color, record.visibility, record.ids))
+    pcd = frame_pointcloud(
+        record.xyz, record.color, record.visibility, record.ids, None, visibility_form
+    )
+    write_cloud_ply(path, pcd, record.visibility if visibility_form == "sparse" else None)
 
 
 def reconstruct_capture(
@@ -181,9 +113,11 @@ def reconstruct_capture(
 ) -> Trajectories:
     """Reconstruct trajectories of a capture into a work folder, resuming where it stopped.
 
-    Writes ``clouds/<t:06d>.ply`` and ``state/<t:06d>.npz`` per frame (the state file last, so
-    that it marks the frame complete), then ``trajectories.npz``. Frames whose state file
-    exists (contiguously from ``frames.start``) are not recomputed.
+    Writes ``clouds/<t:06d>.ply`` and the frame's record ``state/<t:06d>.npz`` per frame, then
+    replaces ``state/live.npz`` (the tracker's state, which marks the frame complete;
+    :class:`~.framestore.FrameStore`), and at the end ``trajectories.npz``, assembled from the
+    record files. Frames up to the live state's (with records contiguously from
+    ``frames.start``) are not recomputed. No record stays in memory between frames.
 
     Parameters
     ----------
@@ -218,22 +152,17 @@ def reconstruct_capture(
         raise ValidationError(
             f"frames {frames.start}:{frames.stop} must be a non-empty range within [0, {T})"
         )
-    records: list[FrameRecord] = []
-    state = None
-    for t in frames:  # resume: contiguous complete frames
-        path = _state_path(work, t)
-        if not path.is_file():
-            break
-        rec, state = _load_state(path, len(rig))
-        records.append(rec)
+    store = FrameStore(work, len(rig))
+    done, state = store.resume(frames)
+    for t in frames[:done]:
         if on_frame is not None:
-            on_frame(rec)
-    if records:
-        logger.info("resuming after frame %d (%d frames done)", records[-1].frame, len(records))
+            on_frame(store.read_record(t))
+    if done:
+        logger.info("resuming after frame %d (%d frames done)", frames[done - 1], done)
     tracker = Tracker(rig, cfg, state=state, first_frame=frames.start)
-    if state is not None and len(records) < len(frames):
+    if state is not None and done < len(frames):
         tracker.set_previous_images([capture.read(n, state.frame) for n in names])
-    for t in frames[len(records) :]:
+    for t in frames[done:]:
         images = [capture.read(n, t) for n in names]
         rec = tracker.step(t, images)
         if len(rec.ids) == 0:
@@ -242,9 +171,8 @@ def reconstruct_capture(
                 "writing an empty cloud and going on",
                 t,
             )
-        write_frame_cloud(work / "clouds" / f"{t:06d}.ply", rec)
-        _save_state(_state_path(work, t), rec, tracker.state)
-        records.append(rec)
+        write_frame_cloud(work / "clouds" / f"{t:06d}.ply", rec, cfg.cloud_visibility)
+        store.save_frame(rec, tracker.state)
         if on_frame is not None:
             on_frame(rec)
     ended = sum(tracker.stops.values())
@@ -254,7 +182,7 @@ def reconstruct_capture(
             ended,
             ", ".join(f"{k} {100 * v / ended:.1f} %" for k, v in tracker.stops.items()),
         )
-    traj = assemble_trajectories(records, names, float(capture.fps), T)
+    traj = store.assemble(frames, names, float(capture.fps), T)
     stitched, new_id = stitch_trajectories(traj, cfg.stitch)
     final, dropped = trim_one_view_tails(stitched, cfg.visibility_threshold, cfg.min_views)
     if dropped:
@@ -265,7 +193,9 @@ def reconstruct_capture(
     if final is not traj:  # the clouds carry the stitched trajectories' ids and rows
         for t in frames:
             if _frame_changed(traj, final, t):
-                final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
+                final.write_frame_ply(
+                    t, work / "clouds" / f"{t:06d}.ply", visibility_form=cfg.cloud_visibility
+                )
     final.save(work / "trajectories.npz")
     return final
 
