@@ -291,7 +291,10 @@ def reconstruct_work(
             wanted = {"reconstruct_run": None, "reconstruct": None} | wf.run_document(
                 capture, rng, cfg
             )
-            if wf.run_identity() != wanted:
+            have = wf.run_identity()
+            if isinstance(have.get("reconstruct"), dict):  # work.toml of an older version:
+                have["reconstruct"].setdefault("cloud_visibility", "full")  # its clouds' form
+            if have != wanted:
                 if on_change == "refuse":
                     raise ValidationError(
                         f"{wf.path} holds a reconstruction of another capture, frame range or "

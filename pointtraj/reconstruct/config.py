@@ -117,10 +117,10 @@ class ReconstructConfig:
     cloud_visibility : {"full", "uint8", "sparse"}
         How ``clouds/<t>.ply`` hold the points' visibility
         (:data:`pointtraj.trajectories.CLOUD_VISIBILITY`): C float32 columns (the default, what
-        Open3D users read), C uint8 columns (the store's quantised values, a quarter of the
-        size), or only the observed views as a second PLY element (about a sixth on
-        paper69). ``load_cloud`` reads every form back to (N, C) float32. It does not change
-        the trajectories.
+        Open3D users read), C uint8 columns (the store's quantised values: a third of the
+        file on paper69), or only the observed views as a second PLY element (a fifth).
+        ``load_cloud`` reads every form back to (N, C) float32. It does not change the
+        trajectories; as one of the run's parameters, changing it restarts a run.
     """
 
     sigma_px: float = 1.0

@@ -158,7 +158,7 @@ class FrameStore:
             inconsistent.
         """
         path = self.record_path(t)
-        names = [*fields, "rec_frame"] + [f"rec_{k}" for k in fields]
+        names = [*fields] + [f"rec_{k}" for k in fields]
         d = load_npz(path, (), "a frame record", keys=["format_version", "frame", *names])
         version = int(d.get("format_version", 1))
         if version > RECORD_FORMAT_VERSION:

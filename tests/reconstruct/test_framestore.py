@@ -305,3 +305,32 @@ def test_the_cloud_visibility_option_changes_only_the_clouds(capture, reference,
         assert (work / "clouds" / f"{t:06d}.ply").stat().st_size < (
             reference / "clouds" / f"{t:06d}.ply"
         ).stat().st_size
+
+
+def test_a_work_folder_of_an_older_version_resumes_through_the_stage(capture, reference, tmp_path):
+    """A work.toml without cloud_visibility and format 1 state files: the run resumes."""
+    import tomllib
+
+    import tomli_w
+
+    from pointtraj.stages import reconstruct_work
+
+    work = tmp_path / "work"
+
+    def crash(label: str, done: int, total: int) -> None:
+        if done == 2:
+            raise Interrupted
+
+    with pytest.raises(Interrupted):
+        reconstruct_work(work, capture, CONFIG, progress=crash)
+    doc = tomllib.loads((work / "work.toml").read_text())
+    del doc["reconstruct"]["cloud_visibility"]
+    (work / "work.toml").write_text(tomli_w.dumps(doc))
+    store = FrameStore(work, 3)
+    live = store.read_live()
+    _write_v1(store, store.read_record(0), live)  # frame 0's live state is not used
+    _write_v1(store, store.read_record(1), live)
+    store.live_path.unlink()
+    reconstruct_work(work, capture, CONFIG)
+    _assert_same_outputs(work, reference)
+    assert store.record_version(1) == 1 and store.record_version(2) == 2
