@@ -334,3 +334,12 @@ def test_a_work_folder_of_an_older_version_resumes_through_the_stage(capture, re
     reconstruct_work(work, capture, CONFIG)
     _assert_same_outputs(work, reference)
     assert store.record_version(1) == 1 and store.record_version(2) == 2
+
+
+def test_an_empty_live_state_round_trips(tmp_path):
+    """A frame with no live point (black images) resumes too."""
+    store = FrameStore(tmp_path, 4)
+    store.write_live(TrackState.empty(4, frame=3))
+    back = store.read_live()
+    assert back.frame == 3 and len(back) == 0
+    assert back.visibility.shape == (0, 4) and back.pixels.shape == (4, 0, 2)
