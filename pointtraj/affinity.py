@@ -50,6 +50,7 @@ import numpy as np
 
 from .atomic import save_npz_atomic
 from .errors import FileFormatError, ValidationError, check_array
+from .executor import Executor, SerialExecutor
 from .geometry import fit_rigid
 from .trajectories import Trajectories
 
@@ -67,6 +68,7 @@ __all__ = [
     "fit_local_rigid",
     "local_transforms",
     "pair_errors",
+    "both_pair_errors",
     "symmetric_affinity",
     "save_affinity",
     "load_affinity",
@@ -536,12 +538,78 @@ def _triad_rotation(a1, a2, b1, b2) -> np.ndarray:
     return Fb @ np.swapaxes(Fa, -1, -2)
 
 
+def _fit_chunk(
+    context: tuple[Trajectories, np.ndarray, AffinityConfig],
+    item: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """RANSAC and Kabsch for one chunk of point-frames (a task of :func:`fit_local_rigid`).
+
+    Parameters
+    ----------
+    context : (Trajectories, (M, S) int64 ndarray, AffinityConfig)
+        The store, the ε-neighbours and the settings.
+    item : ((B,) int64, (B, H) float64, (B, H) float64 ndarrays)
+        The rows of i at t, and the uniform draws that pick each hypothesis's two neighbours.
+
+    Returns
+    -------
+    rows : (B,) int64 ndarray
+    ok : (B,) bool ndarray
+        Rows with a transform.
+    rotation : (F, 3, 3) float32 ndarray
+        The transforms of the F rows ``rows[ok]``.
+    inliers : (F,) int ndarray
+        Their inlier counts under the refined rotation.
+    """
+    traj, nbrs, cfg = context
+    r, u1, u2 = item
+    S = nbrs.shape[1]
+    thr2 = cfg.ransac_threshold**2
+    xyz = traj.xyz
+    i = traj.row_track[r]
+    t = traj.row_frame[r]
+    nb = nbrs[i]  # (B, S)
+    jj = np.maximum(nb, 0)
+    alive = (
+        (nb >= 0) & (traj.first_frame[jj] <= t[:, None] - 1) & (traj.last_frame[jj] >= t[:, None])
+    )
+    rj = traj.offsets[jj] + t[:, None] - traj.first_frame[jj]  # (B, S)
+    rj = np.where(alive, rj, 0)
+    a = xyz[np.maximum(rj - 1, 0)] - xyz[r - 1][:, None]  # (B, S, 3) Δ at t-1
+    b = xyz[rj] - xyz[r][:, None]  # (B, S, 3) Δ at t
+    # valid neighbours first, then sample index pairs among them
+    order = np.argsort(~alive, axis=1, kind="stable")
+    a = np.take_along_axis(a, order[..., None], axis=1)
+    b = np.take_along_axis(b, order[..., None], axis=1)
+    nval = alive.sum(axis=1)  # (B,)
+    ok = nval >= max(2, cfg.min_inliers)
+    n = np.maximum(nval, 2)
+    k1 = (u1 * n[:, None]).astype(np.int64)
+    k2 = (k1 + 1 + (u2 * (n[:, None] - 1)).astype(np.int64)) % n[:, None]
+    bi = np.arange(r.size)[:, None]
+    Rh = _triad_rotation(a[bi, k1], a[bi, k2], b[bi, k1], b[bi, k2])  # (B, H, 3, 3)
+    Rh = Rh.astype(np.float32)
+    res = b[:, None] - a[:, None] @ np.swapaxes(Rh, -1, -2)  # (B, H, S, 3)
+    valid = np.arange(S)[None, :] < nval[:, None]  # (B, S)
+    inlier = (_sqnorm(res) < thr2) & valid[:, None]  # (B, H, S)
+    best = inlier.sum(axis=2).argmax(axis=1)  # (B,)
+    w = inlier[np.arange(r.size), best]  # (B, S)
+    ninl = w.sum(axis=1)
+    ok &= ninl >= cfg.min_inliers
+    R = fit_rigid(a, b, w, center=False).rotation  # (B, 3, 3) Kabsch on the inliers
+    # inlier count under the refined rotation
+    res2 = b - a @ np.swapaxes(R, 1, 2).astype(np.float32)
+    n2 = ((_sqnorm(res2) < thr2) & valid).sum(axis=1)
+    return r, ok, R[ok], n2[ok]
+
+
 def fit_local_rigid(
     traj: Trajectories,
     nbrs: np.ndarray,
     config: AffinityConfig | None = None,
     *,
     progress: Callable[[int], None] | None = None,
+    executor: Executor | None = None,
 ) -> LocalTransforms:
     """RANSAC fit of ``(R_t^i, t_t^i)`` for every trajectory i and frame t (t - 1 alive).
 
@@ -559,6 +627,9 @@ def fit_local_rigid(
     config : AffinityConfig, optional
     progress : callable, optional
         Called with the number of point-frames done after each chunk.
+    executor : Executor, optional
+        Where the chunks of point-frames are fitted (default: serially, here); the random
+        draws are made here, so the transforms are the same on any executor.
 
     Returns
     -------
@@ -573,48 +644,23 @@ def fit_local_rigid(
     rows_all = np.setdiff1d(np.arange(P), traj.offsets[:-1], assume_unique=True)
     chunk = max(1, 400_000 // max(S, 1))
     H = cfg.ransac_iterations
-    thr2 = cfg.ransac_threshold**2
-    xyz = traj.xyz
-    for c0 in range(0, rows_all.size, chunk):
-        r = rows_all[c0 : c0 + chunk]  # (B,) rows of i at t
-        i = traj.row_track[r]
-        t = traj.row_frame[r]
-        nb = nbrs[i]  # (B, S)
-        jj = np.maximum(nb, 0)
-        alive = (
-            (nb >= 0)
-            & (traj.first_frame[jj] <= t[:, None] - 1)
-            & (traj.last_frame[jj] >= t[:, None])
-        )
-        rj = traj.offsets[jj] + t[:, None] - traj.first_frame[jj]  # (B, S)
-        rj = np.where(alive, rj, 0)
-        a = xyz[np.maximum(rj - 1, 0)] - xyz[r - 1][:, None]  # (B, S, 3) Δ at t-1
-        b = xyz[rj] - xyz[r][:, None]  # (B, S, 3) Δ at t
-        # valid neighbours first, then sample index pairs among them
-        order = np.argsort(~alive, axis=1, kind="stable")
-        a = np.take_along_axis(a, order[..., None], axis=1)
-        b = np.take_along_axis(b, order[..., None], axis=1)
-        nval = alive.sum(axis=1)  # (B,)
-        ok = nval >= max(2, cfg.min_inliers)
-        n = np.maximum(nval, 2)
-        k1 = (rng.random((r.size, H)) * n[:, None]).astype(np.int64)
-        k2 = (k1 + 1 + (rng.random((r.size, H)) * (n[:, None] - 1)).astype(np.int64)) % n[:, None]
-        bi = np.arange(r.size)[:, None]
-        Rh = _triad_rotation(a[bi, k1], a[bi, k2], b[bi, k1], b[bi, k2])  # (B, H, 3, 3)
-        Rh = Rh.astype(np.float32)
-        res = b[:, None] - a[:, None] @ np.swapaxes(Rh, -1, -2)  # (B, H, S, 3)
-        valid = np.arange(S)[None, :] < nval[:, None]  # (B, S)
-        inlier = (_sqnorm(res) < thr2) & valid[:, None]  # (B, H, S)
-        best = inlier.sum(axis=2).argmax(axis=1)  # (B,)
-        w = inlier[np.arange(r.size), best]  # (B, S)
-        ninl = w.sum(axis=1)
-        ok &= ninl >= cfg.min_inliers
-        R = fit_rigid(a, b, w, center=False).rotation  # (B, 3, 3) Kabsch on the inliers
-        # inlier count under the refined rotation
-        res2 = b - a @ np.swapaxes(R, 1, 2).astype(np.float32)
-        n2 = ((_sqnorm(res2) < thr2) & valid).sum(axis=1)
-        rot[r[ok]] = R[ok]
-        inl[r[ok]] = n2[ok]
+
+    def chunks():
+        # The random draws are made here, in chunk order: the same on any executor.
+        for c0 in range(0, rows_all.size, chunk):
+            r = rows_all[c0 : c0 + chunk]  # (B,) rows of i at t
+            yield r, rng.random((r.size, H)), rng.random((r.size, H))
+
+    fits = (executor or SerialExecutor()).map(
+        _fit_chunk,
+        chunks(),
+        label="local rigid transforms",
+        total=-(-rows_all.size // chunk),
+        context=(traj, nbrs, cfg),
+    )
+    for r, ok, R, n2 in fits:
+        rot[r[ok]] = R
+        inl[r[ok]] = n2
         if progress is not None:
             progress(r.size)
     logger.info(
@@ -696,7 +742,10 @@ def pair_errors(
 
 
 def local_transforms(
-    traj: Trajectories, config: AffinityConfig, rng: np.random.Generator
+    traj: Trajectories,
+    config: AffinityConfig,
+    rng: np.random.Generator,
+    executor: Executor | None = None,
 ) -> LocalTransforms:
     """Every trajectory's local rigid transforms, fitted on its sampled ε-neighbours.
 
@@ -711,6 +760,8 @@ def local_transforms(
         ε, ``rigid_neighbors`` and the RANSAC settings.
     rng : numpy.random.Generator
         Draws the neighbours and the RANSAC samples.
+    executor : Executor, optional
+        Where the RANSAC chunks run (:func:`fit_local_rigid`).
 
     Returns
     -------
@@ -719,7 +770,67 @@ def local_transforms(
     nb = filter_neighbors(
         traj, sample_neighbors(traj, config.epsilon, config.rigid_neighbors, rng), config.epsilon
     )
-    return fit_local_rigid(traj, nb, config)
+    return fit_local_rigid(traj, nb, config, executor=executor)
+
+
+#: Pairs per task of :func:`both_pair_errors`.
+_PAIR_CHUNK = 100_000
+
+
+def _both_errors_chunk(
+    context: tuple[Trajectories, LocalTransforms, str], pairs: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pair_errors` of one chunk of pairs, both ways (a task of :func:`both_pair_errors`)."""
+    traj, transforms, mode = context
+    i, j = pairs
+    return pair_errors(traj, transforms, i, j, mode), pair_errors(traj, transforms, j, i, mode)
+
+
+def both_pair_errors(
+    traj: Trajectories,
+    transforms: LocalTransforms,
+    i: np.ndarray,
+    j: np.ndarray,
+    mode: Literal["step", "accumulated"] = "step",
+    executor: Executor | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pair_errors` of ``(i, j)`` and of ``(j, i)``, by chunks of pairs.
+
+    Each pair's error depends on that pair alone, so the chunks (and the executor that runs
+    them) do not change the result.
+
+    Parameters
+    ----------
+    traj : Trajectories
+    transforms : LocalTransforms
+    i, j : (Q,) int ndarray
+    mode : {"step", "accumulated"}
+    executor : Executor, optional
+        Default: serially, here.
+    progress : callable, optional
+        ``progress("errors", done, total)`` per chunk.
+
+    Returns
+    -------
+    e_fwd, e_bwd : (Q,) float64 ndarray
+        Transforms of i applied to j, and of j applied to i.
+    """
+    i = np.asarray(i, np.int64)
+    j = np.asarray(j, np.int64)
+    starts = range(0, i.size, _PAIR_CHUNK)
+    parts = list(
+        (executor or SerialExecutor()).map(
+            _both_errors_chunk,
+            [(i[s : s + _PAIR_CHUNK], j[s : s + _PAIR_CHUNK]) for s in starts],
+            label="errors",
+            progress=progress,
+            context=(traj, transforms, mode),
+        )
+    )
+    if not parts:
+        return np.full(0, np.nan), np.full(0, np.nan)
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 def symmetric_affinity(
@@ -762,6 +873,7 @@ def compute_affinity(
     config: AffinityConfig | None = None,
     *,
     progress: Callable[[str, int, int], None] | None = None,
+    executor: Executor | None = None,
 ) -> AffinityGraph:
     """The sparse symmetric affinity graph of a trajectory store (paper Equation (affinity)).
 
@@ -771,6 +883,9 @@ def compute_affinity(
     config : AffinityConfig, optional
     progress : callable, optional
         ``progress(stage, done, total)`` after each step, for progress bars.
+    executor : Executor, optional
+        Where the local rigid fits and the pair errors run, by chunks of point-frames and of
+        pairs (default: serially, here). The graph is the same on any executor.
 
     Returns
     -------
@@ -789,12 +904,12 @@ def compute_affinity(
             progress(stage, done, total)
 
     report("epsilon-neighbours and local rigid transforms", 0, 5)
-    tf = local_transforms(traj, cfg, rng)
+    tf = local_transforms(traj, cfg, rng, executor)
     report("epsilon_a-neighbours", 2, 5)
     i, j, dist = candidate_pairs(traj, cfg.epsilon_a, cfg.near_neighbors, cfg.max_neighbors, rng)
     report("errors", 3, 5)
-    e_fwd = pair_errors(traj, tf, i, j, cfg.mode)  # transforms of i applied to j
-    e_bwd = pair_errors(traj, tf, j, i, cfg.mode)
+    # transforms of i applied to j, and of j applied to i
+    e_fwd, e_bwd = both_pair_errors(traj, tf, i, j, cfg.mode, executor)
     del tf
     report("symmetrise", 4, 5)
     A = symmetric_affinity(e_fwd, e_bwd, cfg.tau, cfg.symmetrize)

@@ -38,6 +38,7 @@ __all__ = [
     "write_text_atomic",
     "verify_file",
     "owner",
+    "record_installed",
     "remove_stale_temporaries",
     "TEMP_PREFIX",
 ]
@@ -86,6 +87,17 @@ def owner(root: str | os.PathLike, record: Callable[[Path], None]) -> Iterator[N
     finally:
         with _owners_lock:
             _owners.pop(key, None)
+
+
+def record_installed(path: str | os.PathLike) -> None:
+    """Report a file that another process installed (a worker of the executor) to the owner of
+    its folder (:func:`owner`), as if it had been installed here.
+
+    Parameters
+    ----------
+    path : path-like
+    """
+    _report_installed(Path(path))
 
 
 def _report_installed(path: Path) -> None:

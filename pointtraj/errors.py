@@ -52,6 +52,9 @@ class FileFormatError(PointtrajError, ValueError):
         self.message = message
         super().__init__(f"{self.path}: {message}")
 
+    def __reduce__(self):  # pickles whole (a task's error on a Dask worker comes back as is)
+        return type(self), (self.path, self.message)
+
 
 class WriteError(PointtrajError):
     """An output could not be written whole (a full disk, a read-only folder, a writer that
@@ -69,6 +72,9 @@ class WriteError(PointtrajError):
         self.path = str(path)
         self.message = message
         super().__init__(f"{self.path}: {message}")
+
+    def __reduce__(self):  # pickles whole (a task's error on a Dask worker comes back as is)
+        return type(self), (self.path, self.message)
 
 
 class WorkFolderError(PointtrajError):

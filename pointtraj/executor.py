@@ -11,7 +11,10 @@ two kinds, behind one interface:
   address (started by hand, by ``dask-jobqueue`` on SLURM/PBS, or on Kubernetes; see
   ``docs/scaling.md``).
 
-A task is a module-level function and its arguments (so that it pickles). Tasks read their
+A task is a module-level function and its arguments (so that it pickles); what every task of a
+map shares (a trajectory store, a rig, settings) goes once to each worker as the ``context`` of
+:meth:`Executor.map`, and what is costly to make (a recogniser's model, an offscreen renderer) is
+made once per worker process by :func:`worker_cache`. Tasks read their
 inputs from files and write their outputs atomically (:mod:`pointtraj.atomic`), so a task that
 a lost worker leaves half done is simply run again; on a cluster, the capture and the work
 folder must be on a path that the client and every worker share. Results come back in the
@@ -25,7 +28,9 @@ from __future__ import annotations
 
 import logging
 import os
-from collections import deque
+import threading
+import warnings
+from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
@@ -36,9 +41,11 @@ __all__ = [
     "DaskExecutor",
     "Executor",
     "ExecutorConfig",
+    "LazyExecutor",
     "SerialExecutor",
     "open_executor",
     "usable_cores",
+    "worker_cache",
 ]
 
 logger = logging.getLogger(__name__)
@@ -71,6 +78,8 @@ class ExecutorConfig:
         shared equally, ``"4GiB"``, ``"0"`` for none).
     dashboard : bool
         Serve the Dask dashboard of a local cluster (its link is logged).
+    wait_workers : float
+        Seconds to wait for the scheduler at ``address`` to answer, and then to have a worker.
     """
 
     address: str = ""
@@ -78,6 +87,7 @@ class ExecutorConfig:
     threads_per_worker: int = 1
     memory_limit: str = "auto"
     dashboard: bool = True
+    wait_workers: float = 60.0
 
     def __post_init__(self) -> None:
         if self.workers < 0:
@@ -86,6 +96,8 @@ class ExecutorConfig:
             raise ValidationError(
                 f"executor threads_per_worker must be >= 1, got {self.threads_per_worker}"
             )
+        if not self.wait_workers > 0:
+            raise ValidationError(f"executor wait_workers must be > 0, got {self.wait_workers}")
         if self.address and "://" not in self.address:
             raise ValidationError(
                 f"executor address {self.address!r} is not a scheduler address "
@@ -119,6 +131,11 @@ class Executor:
 
     workers: int = 1
 
+    @property
+    def local(self) -> bool:
+        """Whether tasks run in this process (their arguments are then not pickled)."""
+        return True
+
     def map(
         self,
         fn: Callable[..., R],
@@ -128,8 +145,9 @@ class Executor:
         progress: Progress | None = None,
         total: int | None = None,
         max_pending: int | None = None,
+        context: Any = None,
     ) -> Iterator[R]:
-        """``fn(item)`` for each item, yielded in the order of ``items``.
+        """``fn(item)`` (or ``fn(context, item)``) for each item, in the order of ``items``.
 
         At most ``max_pending`` tasks are submitted and not yet consumed (default: twice the
         workers), so neither the inputs nor the results of a long stage pile up in memory.
@@ -147,6 +165,9 @@ class Executor:
         total : int, optional
             The number of items, when ``items`` has no ``len``.
         max_pending : int, optional
+        context : object, optional
+            Given, each task is ``fn(context, item)``: the context is sent once to each worker
+            (not with every task) and must not be changed by the tasks.
 
         Yields
         ------
@@ -154,6 +175,11 @@ class Executor:
             Each task's result.
         """
         raise NotImplementedError
+
+    @property
+    def description(self) -> str:
+        """What this executor is, in words (with the dashboard's link where there is one)."""
+        return "serial, in this process"
 
     def close(self) -> None:
         """Release the workers (a no-op for the serial executor)."""
@@ -176,10 +202,12 @@ class SerialExecutor(Executor):
 
     workers = 1
 
-    def map(self, fn, items, *, label="", progress=None, total=None, max_pending=None):
+    def map(
+        self, fn, items, *, label="", progress=None, total=None, max_pending=None, context=None
+    ):
         items, total = _count(items, total)
         for done, item in enumerate(items, 1):
-            result = fn(item)
+            result = fn(item) if context is None else fn(context, item)
             if progress is not None:
                 progress(label, done, total or done)
             yield result
@@ -190,6 +218,9 @@ class SerialExecutor(Executor):
 
 class DaskExecutor(Executor):
     """Runs tasks on a Dask distributed cluster through a ``Client``.
+
+    A task that fails raises its own exception here (a :class:`PointtrajError` with its
+    message); a task whose worker dies is run again on another (Dask's ``allowed-failures``).
 
     Parameters
     ----------
@@ -207,37 +238,70 @@ class DaskExecutor(Executor):
         info = self.client.scheduler_info()
         return max(1, sum(w.get("nthreads", 1) for w in info.get("workers", {}).values()))
 
-    def map(self, fn, items, *, label="", progress=None, total=None, max_pending=None):
+    @property
+    def local(self) -> bool:
+        return False
+
+    @property
+    def description(self) -> str:
+        info = self.client.scheduler_info().get("workers", {})
+        threads = sum(w.get("nthreads", 1) for w in info.values())
+        where = "local Dask cluster" if self.cluster is not None else "Dask cluster at "
+        if self.cluster is None:
+            where += str(self.client.scheduler.address)
+        text = f"{where}, {len(info)} workers, {threads} threads"
+        link = self.client.dashboard_link if _has_dashboard(self.client) else ""
+        return f"{text}; dashboard {link}" if link else text
+
+    def map(
+        self, fn, items, *, label="", progress=None, total=None, max_pending=None, context=None
+    ):
+        from distributed import KilledWorker
+
         items, total = _count(items, total)
         limit = max_pending or 2 * self.workers
+        shared = None
+        if context is not None:
+            # once to every worker (a worker that joins later fetches it from a peer)
+            # (in a list: a tuple or dict context is one object, not one per element)
+            [shared] = self.client.scatter([context], broadcast=True, hash=False)
         pending: deque[Any] = deque()
         done = 0
         it = iter(items)
         exhausted = False
-        while True:
-            while not exhausted and len(pending) < limit:
+        try:
+            while True:
+                while not exhausted and len(pending) < limit:
+                    try:
+                        item = next(it)
+                    except StopIteration:
+                        exhausted = True
+                        break
+                    # pure=False: every call is a new task, even with equal arguments
+                    args = (item,) if shared is None else (shared, item)
+                    pending.append(self.client.submit(fn, *args, pure=False, key=_key(fn, label)))
+                if not pending:
+                    return
+                future = pending.popleft()
                 try:
-                    item = next(it)
-                except StopIteration:
-                    exhausted = True
-                    break
-                # pure=False: every call is a new task, even with equal arguments
-                pending.append(self.client.submit(fn, item, pure=False))
-            if not pending:
-                return
-            future = pending.popleft()
-            try:
-                result = future.result()
-            except Exception:
-                for f in pending:
-                    f.cancel()
-                raise
-            finally:
-                future.release()
-            done += 1
-            if progress is not None:
-                progress(label, done, total or done)
-            yield result
+                    result = future.result()
+                except KilledWorker as exc:
+                    raise PointtrajError(
+                        f"{label or 'a task'}: every worker that ran one of its tasks died "
+                        f"({exc}); out of memory? Give the workers more (--memory-limit of "
+                        "`dask worker`, [executor] memory_limit) or run fewer per machine"
+                    ) from None
+                finally:
+                    future.release()
+                done += 1
+                if progress is not None:
+                    progress(label, done, total or done)
+                yield result
+        finally:
+            for f in pending:  # an error, or the caller stopped early
+                f.cancel()
+            if shared is not None:
+                shared.release()
 
     def close(self) -> None:
         self.client.close()
@@ -246,6 +310,157 @@ class DaskExecutor(Executor):
 
     def __repr__(self) -> str:
         return f"DaskExecutor({self.client.scheduler.address}, {self.workers} workers)"
+
+
+class LazyExecutor(Executor):
+    """The executor of a configuration, opened when first asked for work (then kept).
+
+    A pipeline whose stages are up to date, or that fails before its first task, starts no
+    cluster.
+
+    Parameters
+    ----------
+    config : ExecutorConfig
+    on_open : callable, optional
+        Called with the executor once it is open.
+    """
+
+    def __init__(
+        self, config: ExecutorConfig, on_open: Callable[[Executor], None] | None = None
+    ) -> None:
+        self.config = config
+        self.on_open = on_open
+        self._executor: Executor | None = None
+
+    @property
+    def executor(self) -> Executor:
+        """The open executor (opened now if it is not yet)."""
+        if self._executor is None:
+            self._executor = open_executor(self.config)
+            if self.on_open is not None:
+                self.on_open(self._executor)
+        return self._executor
+
+    @property
+    def workers(self) -> int:  # type: ignore[override]
+        return self.executor.workers
+
+    @property
+    def local(self) -> bool:
+        return self.executor.local
+
+    @property
+    def description(self) -> str:
+        return self.executor.description
+
+    def map(self, fn, items, **kwargs):
+        return self.executor.map(fn, items, **kwargs)
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.close()
+            self._executor = None
+
+    def __repr__(self) -> str:
+        return f"LazyExecutor({self._executor or self.config!r})"
+
+
+def _key(fn: Callable[..., Any], label: str) -> str:
+    """A task key that the dashboard shows as the task's name (unique per task)."""
+    import uuid
+
+    name = getattr(fn, "__name__", None) or getattr(getattr(fn, "func", None), "__name__", "task")
+    return f"{label or name}-{uuid.uuid4().hex}".replace(" ", "_")
+
+
+def _has_dashboard(client: Any) -> bool:
+    try:
+        return bool(client.scheduler_info().get("services", {}).get("dashboard"))
+    except Exception:  # a scheduler that does not say: no link
+        return False
+
+
+_CACHE: OrderedDict[Any, Any] = OrderedDict()
+_CACHE_LOCK = threading.Lock()
+_CACHE_SIZE = 4
+
+
+def worker_cache(key: Any, make: Callable[[], R]) -> R:
+    """``make()``, made once per process and key, for what a task would be slow to remake.
+
+    A recogniser's model, an offscreen renderer or a synthetic scene is made on a worker's
+    first task and reused by its later tasks (the process's last few keys are kept).
+
+    Parameters
+    ----------
+    key : hashable
+        What determines the object (its settings).
+    make : callable
+        Makes it.
+
+    Returns
+    -------
+    object
+    """
+    with _CACHE_LOCK:
+        if key in _CACHE:
+            _CACHE.move_to_end(key)
+            return _CACHE[key]
+    value = make()
+    with _CACHE_LOCK:
+        _CACHE[key] = value
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    return value
+
+
+def _one_thread_opencv(worker: Any) -> None:
+    """OpenCV on one thread in a one-thread worker (the worker process is the core)."""
+    if getattr(worker, "state", worker).nthreads == 1:
+        import cv2
+
+        cv2.setNumThreads(1)
+
+
+def _worker_setup_plugin() -> Any:
+    """A Dask worker plugin running :func:`_one_thread_opencv` on every worker, also later ones."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class PointtrajWorkerSetup(WorkerPlugin):
+        name = "pointtraj-worker-setup"
+        idempotent = True
+
+        def setup(self, worker: Any) -> None:
+            _one_thread_opencv(worker)
+
+    return PointtrajWorkerSetup()
+
+
+_SPAWN_ENVIRON = "distributed.nanny.pre-spawn-environ"
+
+
+def _worker_environ() -> dict[str, Any]:
+    """Dask's environment for new worker processes, without ``MALLOC_TRIM_THRESHOLD_``.
+
+    Dask sets it to 64 KiB to give memory back to the OS sooner; glibc then maps and unmaps
+    every large numpy temporary afresh, and the stages' vectorised steps took twice the CPU
+    (semantics on paper69: 3.2 CPU-s a frame on a worker against 1.3 serially; 1.5 without
+    it). The thread limits (``OMP_NUM_THREADS=1``, ...) stay.
+    """
+    import dask
+
+    environ = dict(dask.config.get(_SPAWN_ENVIRON, default={}) or {})
+    environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    return environ
+
+
+def _dask_log_level() -> int:
+    """Dask's log level: warnings, or its INFO when pointtraj's own INFO is on (``-v``)."""
+    return (
+        logging.INFO
+        if logging.getLogger("pointtraj").getEffectiveLevel() <= logging.INFO
+        else (logging.WARNING)
+    )
 
 
 def open_executor(config: ExecutorConfig | None = None) -> Executor:
@@ -263,7 +478,8 @@ def open_executor(config: ExecutorConfig | None = None) -> Executor:
     Raises
     ------
     PointtrajError
-        If the scheduler at ``config.address`` cannot be reached.
+        If the scheduler at ``config.address`` cannot be reached, or has no workers within
+        ``config.wait_workers`` seconds.
     """
     config = config or ExecutorConfig()
     if config.serial:
@@ -271,36 +487,41 @@ def open_executor(config: ExecutorConfig | None = None) -> Executor:
         return SerialExecutor()
     from distributed import Client, LocalCluster
 
+    for name in ("distributed", "bokeh", "tornado"):
+        logging.getLogger(name).setLevel(_dask_log_level())
     if config.address:
         try:
-            client = Client(config.address, timeout="30s")
+            client = Client(config.address, timeout=f"{config.wait_workers}s")
         except (OSError, TimeoutError) as exc:
             raise PointtrajError(
                 f"cannot reach the Dask scheduler at {config.address} ({exc}); start one with "
                 "`dask scheduler` and workers with `dask worker ADDRESS` (docs/scaling.md)"
             ) from None
+        try:
+            client.wait_for_workers(1, timeout=config.wait_workers)
+        except TimeoutError:
+            client.close()
+            raise PointtrajError(
+                f"the Dask scheduler at {config.address} has no workers after "
+                f"{config.wait_workers:g} s; start some with `dask worker {config.address}`"
+            ) from None
         executor = DaskExecutor(client)
-        logger.info(
-            "executor: Dask cluster at %s, %d worker threads; dashboard %s",
-            config.address,
-            executor.workers,
-            client.dashboard_link,
-        )
-        return executor
-    workers = config.workers or usable_cores()
-    cluster = LocalCluster(
-        n_workers=workers,
-        threads_per_worker=config.threads_per_worker,
-        processes=True,
-        memory_limit=config.memory_limit,
-        dashboard_address=":0" if config.dashboard else None,
-        silence_logs=logging.WARNING,
-    )
-    client = Client(cluster)
-    logger.info(
-        "executor: local Dask cluster, %d workers x %d threads%s",
-        workers,
-        config.threads_per_worker,
-        f"; dashboard {client.dashboard_link}" if config.dashboard else "",
-    )
-    return DaskExecutor(client, cluster)
+    else:
+        import dask
+
+        workers = config.workers or usable_cores()
+        with dask.config.set({_SPAWN_ENVIRON: _worker_environ()}), warnings.catch_warnings():
+            # without a dashboard the scheduler's small HTTP server takes any free port
+            warnings.filterwarnings("ignore", message="Port .* is already in use")
+            cluster = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=config.threads_per_worker,
+                processes=True,
+                memory_limit=config.memory_limit,
+                dashboard_address=":0" if config.dashboard else None,
+                silence_logs=_dask_log_level(),
+            )
+        executor = DaskExecutor(Client(cluster), cluster)
+    executor.client.register_plugin(_worker_setup_plugin())
+    logger.info("executor: %s", executor.description)
+    return executor

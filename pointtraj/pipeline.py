@@ -11,6 +11,11 @@ hashed from its parameters and from the size and modification time of its input 
 the capture's files), so changing a parameter or re-running an upstream stage re-runs exactly
 what depends on it. An interrupted reconstruction resumes at its last finished frame. Seconds
 per stage go to ``WORK/timings.json``, which the report shows.
+
+Table ``[executor]`` (:class:`~pointtraj.executor.ExecutorConfig`) says where the stages'
+independent tasks run: one executor serves the whole run (opened when a stage first has tasks
+for it, so an up-to-date run starts no cluster) and every stage gets it. It is not part of any stage's key: where a task
+runs never changes what it writes.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from typing import Any, Literal
 from .affinity import AffinityConfig
 from .errors import FileFormatError, ValidationError
 from .evaluate.study import EvaluateConfig
+from .executor import Executor, ExecutorConfig, LazyExecutor
 from .reconstruct.config import ReconstructConfig
 from .render.config import RenderConfig
 from .stages import (
@@ -117,6 +123,8 @@ class PipelineConfig:
     label : LabelStageConfig
     evaluate : EvaluateConfig
     render : RenderConfig
+    executor : ExecutorConfig
+        Where the stages' tasks run (not part of any stage's key).
     source : pathlib.Path or None
         The pipeline file it was read from (not a key), for messages.
     """
@@ -136,6 +144,7 @@ class PipelineConfig:
     label: LabelStageConfig = field(default_factory=LabelStageConfig)
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
+    executor: ExecutorConfig = field(default_factory=ExecutorConfig)
     source: Path | None = field(
         default=None, compare=False, repr=False, metadata={"internal": True}
     )
@@ -304,7 +313,7 @@ class _Stage:
     params: Any
     inputs: Callable[[], list[Any]]
     outputs: list[Path]
-    run: Callable[[Progress | None], Any]
+    run: Callable[[Progress | None, Executor], Any]
     timing: str = ""  # key in timings.json (default: the stage name)
 
 
@@ -323,7 +332,7 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
                 synth,
                 lambda: [],
                 [cap / "gt" / "synth.toml", frame_file(cap, synth.frames - 1)],
-                lambda p: stages.synthesize(cap, synth, p),
+                lambda p, ex: stages.synthesize(cap, synth, p, executor=ex),
                 "synth",
             )
         )
@@ -335,7 +344,7 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
                 example,
                 lambda: [],
                 [cap / "rig.toml"],
-                lambda p: _fetch_example(example.name, cap),
+                lambda p, ex: _fetch_example(example.name, cap),
                 "fetch",
             )
         )
@@ -346,7 +355,7 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
                 {"reconstruct": config.reconstruct, "frames": config.frames},
                 lambda: _capture_stamp(cap),
                 [wf.trajectories],
-                lambda p: _reconstruct(config, p, force_folder),
+                lambda p, ex: _reconstruct(config, p, force_folder, ex),
                 "reconstruct",
             )
         )
@@ -357,7 +366,7 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
                 {"ground_truth": True},
                 lambda: _capture_stamp(cap),
                 [wf.trajectories],
-                lambda p: stages.ground_truth_work(wf.path, cap),
+                lambda p, ex: stages.ground_truth_work(wf.path, cap),
                 "ground_truth",
             )
         )
@@ -367,21 +376,23 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
             config.semantics,
             lambda: _capture_stamp(cap) + [_stamp(wf.trajectories)],
             [wf.semantic_map],
-            lambda p: stages.semantics_work(wf.path, config.semantics, cap, progress=p),
+            lambda p, ex: stages.semantics_work(
+                wf.path, config.semantics, cap, progress=p, executor=ex
+            ),
         ),
         _Stage(
             "affinity",
             config.affinity,
             lambda: [_stamp(wf.trajectories)],
             [wf.affinity],
-            lambda p: stages.affinity_work(wf.path, config.affinity, progress=p),
+            lambda p, ex: stages.affinity_work(wf.path, config.affinity, progress=p, executor=ex),
         ),
         _Stage(
             "label",
             config.label,
             lambda: [_stamp(wf.trajectories), _stamp(wf.semantic_map), _stamp(wf.affinity)],
             [wf.labels, wf.labels_csv],
-            lambda p: stages.label_work(wf.path, config.label, progress=p),
+            lambda p, ex: stages.label_work(wf.path, config.label, progress=p),
         ),
         _Stage(
             "evaluate",
@@ -392,7 +403,7 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
                 + [_key(config.semantics, []), _key(config.affinity, [])]
             ),
             [wf.report / "index.md", wf.report / "metrics.json"],
-            lambda p: _evaluate(config, p),
+            lambda p, ex: _evaluate(config, p),
         ),
         _Stage(
             "render",
@@ -402,7 +413,7 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
                 + [_stamp(wf.trajectories), _stamp(wf.labels), _stamp(wf.semantic_map)]
             ),
             [wf.renders / "legend.png"],
-            lambda p: _render(wf.path, config.render, p),
+            lambda p, ex: _render(wf.path, config.render, p, ex),
         ),
     ]
     return [s for s in plan if s.name in config.stages]
@@ -422,10 +433,12 @@ def _evaluate(config: PipelineConfig, progress: Progress | None) -> None:
     )
 
 
-def _render(work: Path, config: RenderConfig, progress: Progress | None) -> None:
+def _render(
+    work: Path, config: RenderConfig, progress: Progress | None, executor: Executor
+) -> None:
     from .render.stage import render_work
 
-    render_work(work, config, progress=progress)
+    render_work(work, config, progress=progress, executor=executor)
 
 
 def _fetch_example(name: str, capture: Path) -> None:
@@ -437,7 +450,9 @@ def _fetch_example(name: str, capture: Path) -> None:
     fetch_example(name, capture)
 
 
-def _reconstruct(config: PipelineConfig, progress: Progress | None, force: bool) -> None:
+def _reconstruct(
+    config: PipelineConfig, progress: Progress | None, force: bool, executor: Executor | None
+) -> None:
     """Reconstruct, resuming an interrupted run of the same settings, else starting afresh."""
     from . import stages
 
@@ -450,6 +465,7 @@ def _reconstruct(config: PipelineConfig, progress: Progress | None, force: bool)
         force=force,
         frames_label=config.frames_label,
         progress=progress,
+        executor=executor,
     )
 
 
@@ -477,6 +493,8 @@ def run_pipeline(
     progress: Progress | None = None,
     on_stage: Callable[[str, str], None] | None = None,
     force_folder: bool = False,
+    executor: Executor | None = None,
+    on_executor: Callable[[Executor], None] | None = None,
 ) -> PipelineResult:
     """Run a pipeline's stages, skipping those that are up to date.
 
@@ -491,6 +509,12 @@ def run_pipeline(
         ``on_stage(stage, event)`` with event ``"start"``, ``"skip"`` or ``"done"``.
     force_folder : bool
         Use a work folder that is non-empty and not pointtraj's (its removed files are logged).
+    executor : Executor, optional
+        Where the stages' tasks run (left open). Default: one opened from ``config.executor``
+        when a stage first has tasks to run, and closed at the end.
+    on_executor : callable, optional
+        Called with the executor this call opens, once it is open (the command line shows where
+        the work runs and the dashboard's link).
 
     Returns
     -------
@@ -508,8 +532,15 @@ def run_pipeline(
     if config.synth is None and config.example is None and not Path(config.capture).is_dir():
         raise FileFormatError(config.capture, "capture folder does not exist")
     wf.claim(force_folder)
-    with wf.lock("pointtraj run"):
-        return _run_locked(config, wf, force, progress, on_stage, force_folder)
+    lazy = None if executor is not None else LazyExecutor(config.executor, on_executor)
+    try:
+        with wf.lock("pointtraj run"):
+            return _run_locked(
+                config, wf, force, progress, on_stage, force_folder, executor or lazy
+            )
+    finally:
+        if lazy is not None:
+            lazy.close()
 
 
 def _run_locked(
@@ -519,6 +550,7 @@ def _run_locked(
     progress: Progress | None,
     on_stage: Callable[[str, str], None] | None,
     force_folder: bool,
+    executor: Executor,
 ) -> PipelineResult:
     """:func:`run_pipeline` inside the work folder's lock."""
     state = _read_json(wf.pipeline_state)
@@ -546,7 +578,7 @@ def _run_locked(
         state["stages"].pop(stage.name, None)
         _write_json(wf.pipeline_state, state)
         t0 = time.perf_counter()
-        stage.run(progress)
+        stage.run(progress, executor)
         seconds = time.perf_counter() - t0
         state["stages"][stage.name] = {
             "key": key,

@@ -39,8 +39,10 @@ from .workdir import WorkFolder, parse_frames
 
 if TYPE_CHECKING:
     from .affinity import AffinityGraph
+    from .executor import Executor
     from .labelfile import TrajectoryLabels
     from .reconstruct.config import ReconstructConfig
+    from .semantics.recognizers import RecognizerSpec
     from .semantics.semantic_map import SemanticMap
     from .synth.render import CaptureSummary
     from .trajectories import Trajectories
@@ -163,9 +165,15 @@ def _report(progress: Progress | None, label: str, done: int, total: int) -> Non
 
 
 def synthesize(
-    capture: str | os.PathLike, config: SynthConfig, progress: Progress | None = None
+    capture: str | os.PathLike,
+    config: SynthConfig,
+    progress: Progress | None = None,
+    *,
+    executor: Executor | None = None,
 ) -> CaptureSummary:
     """Render (or resume rendering) a synthetic capture into ``capture``.
+
+    On a Dask ``executor`` each frame is a task (the files are the same as rendered here).
 
     Returns
     -------
@@ -188,6 +196,7 @@ def synthesize(
         points_per_part=config.points_per_part,
         image_format=config.image_format,
         on_frame=on_frame,
+        executor=executor,
     )
 
 
@@ -233,6 +242,7 @@ def reconstruct_work(
     force: bool = False,
     frames_label: str = "frames",
     progress: Progress | None = None,
+    executor: Executor | None = None,
 ) -> Trajectories:
     """Reconstruct the capture's trajectories into the work folder, resuming an interrupted run.
 
@@ -252,6 +262,9 @@ def reconstruct_work(
     frames_label : str
         How errors about ``frames`` name it (``"--frames"``, ``"pipe.toml: frames"``).
     progress : Progress, optional
+    executor : Executor, optional
+        Runs the temporal chunks of a long frame range (``chunk_frames``; default serially).
+        The output does not depend on it.
 
     Returns
     -------
@@ -285,7 +298,7 @@ def reconstruct_work(
     foreign = not wf.is_pointtraj()
     wf.claim(force)
     with wf.lock("pointtraj reconstruct"):
-        has_run = wf.state.is_dir() or wf.clouds.is_dir()
+        has_run = wf.state.is_dir() or wf.clouds.is_dir() or (wf.path / "chunks").is_dir()
         restart = restart or (foreign and has_run)  # taken over with force: nothing to resume
         if has_run and not restart:
             wanted = {"reconstruct_run": None, "reconstruct": None} | wf.run_document(
@@ -305,7 +318,7 @@ def reconstruct_work(
                 )
                 restart = True
         if restart:
-            wf.remove_outputs(["state", "clouds"], force=force)
+            wf.remove_outputs(["state", "clouds", "chunks"], force=force)
         wf.write_toml(capture, rng, cfg)
         done = [0]
 
@@ -313,7 +326,7 @@ def reconstruct_work(
             done[0] += 1
             _report(progress, "reconstruct", done[0], len(rng))
 
-        return reconstruct_capture(cap, wf.path, rng, cfg, on_frame=on_frame)
+        return reconstruct_capture(cap, wf.path, rng, cfg, on_frame=on_frame, executor=executor)
 
 
 def ground_truth_work(
@@ -350,31 +363,37 @@ def ground_truth_work(
     return trajectories
 
 
-def make_stage_recognizer(config: SemanticsStageConfig, capture: Any):
-    """The recogniser of a semantics stage for an open capture.
+def stage_recognizer_spec(config: SemanticsStageConfig, capture: Any) -> RecognizerSpec:
+    """How to make the recogniser of a semantics stage for an open capture.
 
-    Its class set is the capture's ``labels.toml`` (or the default label set, with a warning).
+    Its class set is the capture's ``labels.toml`` (or the default label set, with a warning);
+    the simulated recogniser gets the capture's folder.
+
+    Raises
+    ------
+    ValidationError
+        On an unknown recogniser.
+    """
+    from .semantics.recognizers import RecognizerSpec
+
+    labels = None if capture.labels_path is None else os.fspath(capture.labels_path)
+    if labels is None:
+        logger.warning("%s has no labels.toml; using the default label set", capture.path)
+    options = dict(config.options)
+    if config.recognizer == "simulated":
+        options.setdefault("capture", str(Path(capture.path).resolve()))
+    return RecognizerSpec(config.recognizer, labels, options)
+
+
+def make_stage_recognizer(config: SemanticsStageConfig, capture: Any):
+    """The recogniser of a semantics stage for an open capture (:func:`stage_recognizer_spec`).
 
     Raises
     ------
     ValidationError
         On an unknown recogniser or an option it does not take.
     """
-    from .labelset import LabelSet
-    from .semantics.recognizers import make_recognizer
-
-    if capture.labels_path is not None:
-        labels = LabelSet.load(capture.labels_path)
-    else:
-        logger.warning("%s has no labels.toml; using the default label set", capture.path)
-        labels = LabelSet.default()
-    options = dict(config.options)
-    if config.recognizer == "simulated":
-        options.setdefault("capture", str(Path(capture.path).resolve()))
-    try:
-        return make_recognizer(config.recognizer, labels, **options)
-    except TypeError as exc:  # an option the recogniser does not take
-        raise ValidationError(f"recognizer {config.recognizer!r}: {exc}") from None
+    return stage_recognizer_spec(config, capture).make()
 
 
 def semantics_work(
@@ -383,6 +402,7 @@ def semantics_work(
     capture: str | os.PathLike | None = None,
     *,
     progress: Progress | None = None,
+    executor: Executor | None = None,
 ) -> SemanticMap:
     """Build ``semantic_map.npz``: recognise every image, view-pool, average over time.
 
@@ -394,6 +414,10 @@ def semantics_work(
     capture : path-like, optional
         Default: the capture ``work.toml`` records.
     progress : Progress, optional
+    executor : Executor, optional
+        Where the camera images are recognised, sampled and pooled, frame by frame (default:
+        serially, here). On a Dask cluster each worker loads the recogniser once and reads the
+        images from the capture's folder, which must be on a path every worker shares.
 
     Returns
     -------
@@ -407,7 +431,9 @@ def semantics_work(
     wf = WorkFolder(work)
     with wf.lock("pointtraj semantics"):
         cap = Capture.open(wf.require_capture(capture))
-        recognizer = make_stage_recognizer(cfg, cap)
+        spec = stage_recognizer_spec(cfg, cap)
+        local = executor is None or executor.local
+        recognizer = spec.make() if local else spec  # a worker makes its own, once
         trajectories = Trajectories.load(wf.trajectories)
         trajectories.check_cameras(cap, wf.trajectories)
         smap = build_semantic_map(
@@ -416,6 +442,7 @@ def semantics_work(
             recognizer,
             config=cfg.semantics_config(),
             progress=progress,
+            executor=executor,
         )
         # The options as given (not the capture, which the simulated recogniser gets anew).
         smap.recognizer_options = {
@@ -430,8 +457,12 @@ def affinity_work(
     config: AffinityConfig | None = None,
     *,
     progress: Progress | None = None,
+    executor: Executor | None = None,
 ) -> AffinityGraph:
     """Compute ``affinity.npz`` from ``trajectories.npz`` (paper Section 4.2).
+
+    The local rigid fits and the pair errors run on ``executor`` (default: serially, here) by
+    chunks of trajectories' point-frames and of pairs; the graph is the same on any executor.
 
     Returns
     -------
@@ -447,6 +478,7 @@ def affinity_work(
             trajectories,
             config or AffinityConfig(),
             progress=None if progress is None else lambda s, d, n: progress("affinity", d, n),
+            executor=executor,
         )
         save_affinity(graph, wf.affinity)
     return graph

@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 from helpers.pipelines import TINY
+
+# The commands run their stages serially in the tests (this process, and the commands the tests
+# start as subprocesses): no test starts a Dask cluster unless it is about one (test_executor).
+os.environ["POINTTRAJ_WORKERS"] = "1"
+os.environ.pop("POINTTRAJ_SCHEDULER", None)
 
 
 @pytest.fixture(scope="session")

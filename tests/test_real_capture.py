@@ -43,6 +43,9 @@ views = []
 video = false
 size = [320, 256]
 tail = 2
+
+[executor]
+workers = 1
 """
 
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .common import executor_options
+
 __all__ = ["affinity"]
 
 
@@ -23,15 +25,22 @@ __all__ = ["affinity"]
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
     help="TOML file with an [affinity] table of AffinityConfig fields (a pipeline file works).",
 )
-def affinity(work: Path, config_path: Path | None, **options) -> None:
+@executor_options
+def affinity(
+    work: Path, config_path: Path | None, workers: int | None, scheduler: str | None, **options
+) -> None:
     """Compute WORK/affinity.npz from WORK/trajectories.npz (paper Section 4.2)."""
     from ..affinity import AffinityConfig
     from ..stages import affinity_work
-    from .common import cli_errors, config_from, progress_bars
+    from .common import cli_errors, config_from, executor_config, open_cli_executor, progress_bars
 
     cfg = config_from(AffinityConfig, config_path, "affinity", options)
-    with cli_errors(work), progress_bars() as bars:
-        graph = affinity_work(work, cfg, progress=bars)
+    with (
+        cli_errors(work),
+        open_cli_executor(executor_config(workers, scheduler)) as ex,
+        progress_bars() as bars,
+    ):
+        graph = affinity_work(work, cfg, progress=bars, executor=ex)
     click.echo(
         f"{graph.num_edges} affinity edges over {graph.num_nodes} trajectories "
         f"-> {work / 'affinity.npz'}"

@@ -16,15 +16,27 @@ import os
 import sys
 from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
 from ..errors import PointtrajError, os_error_message
 
-__all__ = ["ProgressBars", "cli_errors", "config_from", "progress_bars"]
+if TYPE_CHECKING:
+    from ..executor import Executor, ExecutorConfig
+
+__all__ = [
+    "ProgressBars",
+    "cli_errors",
+    "config_from",
+    "executor_config",
+    "executor_options",
+    "open_cli_executor",
+    "progress_bars",
+]
 
 T = TypeVar("T")
+F = TypeVar("F")
 
 
 def config_from(
@@ -120,3 +132,64 @@ def cli_errors(default_path: str | os.PathLike = ".") -> Iterator[None]:
         raise click.ClickException(str(exc)) from None
     except OSError as exc:
         raise click.ClickException(os_error_message(exc, default_path)) from None
+
+
+def executor_options(command: F) -> F:
+    """Add ``--workers`` and ``--scheduler`` (where the stage's tasks run) to a command."""
+    command = click.option(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        envvar="POINTTRAJ_SCHEDULER",
+        show_envvar=True,
+        help="Run the tasks on the Dask cluster of this scheduler (tcp://host:8786); the "
+        "capture and the work folder must be on a path that every worker shares.",
+    )(command)
+    return click.option(
+        "--workers",
+        type=click.IntRange(0),
+        default=None,
+        envvar="POINTTRAJ_WORKERS",
+        show_envvar=True,
+        help="Worker processes of the local Dask cluster (1: serial in this process; 0: one per "
+        "core, serial on one core) [default: 0, or the pipeline file's [executor]].",
+    )(command)
+
+
+def executor_config(
+    workers: int | None, scheduler: str | None, base: ExecutorConfig | None = None
+) -> ExecutorConfig:
+    """``base`` (default: the defaults) with ``--workers`` / ``--scheduler`` where given.
+
+    Raises
+    ------
+    click.UsageError
+        On a bad value (one line).
+    """
+    import dataclasses
+
+    from ..executor import ExecutorConfig
+
+    changes: dict[str, Any] = {}
+    if workers is not None:
+        changes["workers"] = workers
+        changes["address"] = ""  # --workers means this machine
+    if scheduler is not None:
+        changes["address"] = scheduler
+    try:
+        return dataclasses.replace(base or ExecutorConfig(), **changes)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+
+
+@contextlib.contextmanager
+def open_cli_executor(config: ExecutorConfig) -> Iterator[Executor]:
+    """An executor opened when the command first has tasks for it (a command that fails before
+    starts no cluster); where it runs, and the Dask dashboard's link, are shown on stderr."""
+    from ..executor import LazyExecutor
+
+    def on_open(executor: Executor) -> None:
+        click.echo(f"executor: {executor.description}", err=True)
+
+    with LazyExecutor(config, on_open) as executor:
+        yield executor

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .common import ProgressBars, cli_errors
+from .common import ProgressBars, cli_errors, executor_config, executor_options
 
 __all__ = ["run", "demo"]
 
@@ -19,7 +19,9 @@ def _announce(stage: str, event: str) -> None:
 
 
 def run_and_report(config, force: tuple[str, ...] = (), force_folder: bool = False):
-    """Run a pipeline with progress bars; turn library errors into one-line CLI errors."""
+    """Run a pipeline with progress bars; turn library errors into one-line CLI errors.
+
+    Where the tasks run (and the Dask dashboard's link) is shown when the executor opens."""
     from ..pipeline import run_pipeline
 
     bars = ProgressBars()
@@ -28,10 +30,19 @@ def run_and_report(config, force: tuple[str, ...] = (), force_folder: bool = Fal
         bars.close()
         _announce(stage, event)
 
+    def on_executor(executor) -> None:
+        bars.close()
+        click.echo(f"executor: {executor.description}", err=True)
+
     try:
         with cli_errors(config.work):
             return run_pipeline(
-                config, force=force, progress=bars, on_stage=on_stage, force_folder=force_folder
+                config,
+                force=force,
+                progress=bars,
+                on_stage=on_stage,
+                force_folder=force_folder,
+                on_executor=on_executor,
             )
     finally:
         bars.close()
@@ -72,20 +83,28 @@ def _summary(result) -> list[str]:
     help="Use the work folder even if it is a non-empty folder that pointtraj did not make (the "
     "files removed are logged).",
 )
+@executor_options
 def run(
     config_path: Path,
     work: Path | None,
     capture: Path | None,
     force: tuple[str, ...],
     force_folder: bool,
+    workers: int | None,
+    scheduler: str | None,
 ) -> None:
     """Run the pipeline described by CONFIG (a pipelines/*.toml file), skipping what is done.
 
     Relative paths in CONFIG are taken from the current folder. An interrupted run resumes.
     """
+    import dataclasses
+
     from ..pipeline import load_pipeline
 
     config = load_pipeline(config_path).with_paths(capture, work)
+    config = dataclasses.replace(
+        config, executor=executor_config(workers, scheduler, config.executor)
+    )
     click.echo(f"pipeline {config.name or config_path.stem}: work folder {config.work}", err=True)
     result = run_and_report(config, force, force_folder)
     for line in _summary(result):
@@ -108,14 +127,24 @@ def run(
     metavar="STAGE",
     help="Re-run this stage even if it is up to date (repeatable; `all` for every stage).",
 )
-def demo(out: Path, frames: int | None, force: tuple[str, ...]) -> None:
+@executor_options
+def demo(
+    out: Path,
+    frames: int | None,
+    force: tuple[str, ...],
+    workers: int | None,
+    scheduler: str | None,
+) -> None:
     """Run the synthetic demo end to end: render a capture, reconstruct, label, evaluate.
 
     The same as `pointtraj run pipelines/synthetic_demo.toml` with its folders under --out.
     """
+    import dataclasses
+
     from ..pipeline import demo_pipeline
 
     config = demo_pipeline(out, frames=frames)
+    config = dataclasses.replace(config, executor=executor_config(workers, scheduler))
     click.echo(f"pointtraj demo: {config.description}", err=True)
     result = run_and_report(config, force)
     for line in _summary(result):

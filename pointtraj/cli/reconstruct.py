@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from .common import executor_options
+
 __all__ = ["reconstruct", "gt_trajectories"]
 
 
@@ -36,6 +38,7 @@ __all__ = ["reconstruct", "gt_trajectories"]
     help="Use --out even if it is a non-empty folder that pointtraj did not make (the files "
     "removed are logged).",
 )
+@executor_options
 def reconstruct(
     capture: Path,
     work: Path,
@@ -43,18 +46,26 @@ def reconstruct(
     config_path: Path | None,
     restart: bool,
     force_folder: bool,
+    workers: int | None,
+    scheduler: str | None,
 ) -> None:
     """Reconstruct dense 3D trajectories of CAPTURE into the work folder --out.
 
     Writes WORK/work.toml, WORK/clouds/<frame>.ply per frame, WORK/state/ (resume points) and
-    WORK/trajectories.npz. A restart removes only the files pointtraj wrote there.
+    WORK/trajectories.npz. A restart removes only the files pointtraj wrote there. Captures
+    longer than [reconstruct] chunk_frames are tracked in temporal chunks, one task each on the
+    executor (--workers, --scheduler).
     """
     import numpy as np
 
     from ..stages import load_reconstruct_config, reconstruct_work
-    from .common import cli_errors, progress_bars
+    from .common import cli_errors, executor_config, open_cli_executor, progress_bars
 
-    with cli_errors(work), progress_bars() as bars:
+    with (
+        cli_errors(work),
+        open_cli_executor(executor_config(workers, scheduler)) as ex,
+        progress_bars() as bars,
+    ):
         cfg = load_reconstruct_config(config_path)
         traj = reconstruct_work(
             work,
@@ -65,6 +76,7 @@ def reconstruct(
             force=force_folder,
             frames_label="--frames",
             progress=bars,
+            executor=ex,
         )
     first = int(traj.first_frame.min()) if traj.num_trajectories else 0
     median = float(np.median(traj.lengths)) if len(traj.lengths) else 0.0

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .common import executor_options
+
 __all__ = ["render", "parse_frame_range", "parse_size"]
 
 
@@ -85,6 +87,7 @@ def parse_size(text: str) -> tuple[int, int]:
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
     help="TOML file with a [render] table of RenderConfig fields.",
 )
+@executor_options
 def render(
     work: Path,
     views: tuple[str, ...],
@@ -95,6 +98,8 @@ def render(
     no_video: bool,
     force: bool,
     config_path: Path | None,
+    workers: int | None,
+    scheduler: str | None,
     **options,
 ) -> None:
     """Draw WORK's trajectories coloured by label, with tails, into WORK/renders/.
@@ -104,7 +109,7 @@ def render(
     settings are kept, so a rerun resumes.
     """
     from ..render import RenderConfig, render_work
-    from .common import cli_errors, config_from, progress_bars
+    from .common import cli_errors, config_from, executor_config, open_cli_executor, progress_bars
 
     options.update(
         views=views or None,
@@ -115,8 +120,12 @@ def render(
         video=False if no_video else None,
     )
     cfg = config_from(RenderConfig, config_path, "render", options)
-    with cli_errors(work), progress_bars() as bars:
-        result = render_work(work, cfg, force=force, progress=bars)
+    with (
+        cli_errors(work),
+        open_cli_executor(executor_config(workers, scheduler)) as ex,
+        progress_bars() as bars,
+    ):
+        result = render_work(work, cfg, force=force, progress=bars, executor=ex)
     f = result.frames
     click.echo(
         f"{result.num_trajectories} trajectories coloured by {result.color_source} "

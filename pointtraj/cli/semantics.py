@@ -8,6 +8,8 @@ from typing import Any
 
 import click
 
+from .common import executor_options
+
 __all__ = ["semantics"]
 
 
@@ -68,6 +70,7 @@ def _parse_options(options: tuple[str, ...]) -> dict[str, Any]:
     is_flag=True,
     help="If WORK has no trajectories.npz, create it from the capture's gt/ first.",
 )
+@executor_options
 def semantics(
     work: Path,
     recognizer_name: str,
@@ -77,12 +80,14 @@ def semantics(
     eps_e: float | None,
     background_vote: float | None,
     from_ground_truth: bool,
+    workers: int | None,
+    scheduler: str | None,
 ) -> None:
     """Build WORK/semantic_map.npz: recognise every image, view-pool, average over time."""
     from ..semantics.semantic_map import SemanticsConfig
     from ..stages import SemanticsStageConfig, ground_truth_work, semantics_work
     from ..workdir import WorkFolder
-    from .common import progress_bars
+    from .common import executor_config, open_cli_executor, progress_bars
 
     wf = WorkFolder(work)
     capture = capture or wf.capture_path()
@@ -102,8 +107,8 @@ def semantics(
         **({"eps_e": eps_e} if eps_e is not None else {}),
         **({"background_vote": background_vote} if background_vote is not None else {}),
     )
-    with progress_bars() as bars:
-        smap = semantics_work(work, config, capture, progress=bars)
+    with open_cli_executor(executor_config(workers, scheduler)) as ex, progress_bars() as bars:
+        smap = semantics_work(work, config, capture, progress=bars, executor=ex)
     p = smap.poolings[0]
     seen = int((smap.count[p] > 0).sum())
     click.echo(

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .common import executor_options
+
 __all__ = ["synth"]
 
 
@@ -55,6 +57,7 @@ def _summary_lines(summary) -> list[str]:
     help="Frame image format.",
 )
 @click.option("--list", "list_", is_flag=True, help="List presets and scenes, then exit.")
+@executor_options
 def synth(
     preset: str,
     scene: str,
@@ -64,12 +67,14 @@ def synth(
     points_per_part: int,
     image_format: str,
     list_: bool,
+    workers: int | None,
+    scheduler: str | None,
 ) -> None:
     """Render a synthetic multi-camera capture with ground-truth trajectories."""
     from ..stages import SynthConfig, synthesize
     from ..synth.presets import PRESETS
     from ..synth.scenes import SCENES
-    from .common import progress_bars
+    from .common import executor_config, open_cli_executor, progress_bars
 
     if list_:
         for name, p in sorted(PRESETS.items()):
@@ -104,7 +109,9 @@ def synth(
         image_format=image_format,
     )
     label = f"rendering {scene} ({preset})"
-    with progress_bars() as bars:
-        summary = synthesize(out, config, progress=lambda _, done, total: bars(label, done, total))
+    with open_cli_executor(executor_config(workers, scheduler)) as ex, progress_bars() as bars:
+        summary = synthesize(
+            out, config, lambda _, done, total: bars(label, done, total), executor=ex
+        )
     for line in _summary_lines(summary):
         click.echo(line)

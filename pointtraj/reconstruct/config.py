@@ -98,6 +98,32 @@ class ReconstructConfig:
         The flow's result must lie within this many pixels of the point's projection.
     seed : int
         Seed of the RANSAC sampling.
+    chunk_frames : int
+        Frames per temporal chunk (0: one chunk). A longer frame range is tracked in chunks of
+        this many frames, each by its own tracker and as one task of the executor, so that
+        tracking spreads over workers; trajectories are joined across the chunk boundaries
+        (:mod:`pointtraj.reconstruct.chunks`). The chunks depend only on this, the overlap and
+        the frame range, never on the executor: serial and cluster runs give the same output.
+        A range of at most ``chunk_frames`` frames is one chunk, reconstructed as without
+        chunking. The trajectories that the overlap does not join are carried on over the next
+        chunk by their own tracker, in the same task, without new points. On the demo (frames
+        0-29 in chunks of 10) view recall and precision stay within 0.02 of one chunk's, the
+        median 3D errors within 0.3 mm, as many trajectories cross each boundary, and 35 %
+        more CPU goes to the overlap (5 %: ``chunk_frames`` 100); ``docs/reconstruction.md``.
+    chunk_overlap : int
+        Frames that a chunk's tracker starts before its boundary, to warm up: the trajectories
+        of both chunks over these frames are compared to join them, and the chunk's points there
+        are then dropped (each frame's points come from one chunk). 0: no warm-up, and
+        trajectories continue across a boundary only by stitching (``stitch``). Costs
+        ``chunk_overlap / chunk_frames`` more tracking.
+    chunk_join_m : float
+        Two trajectories of consecutive chunks are the same point when they stay within this
+        distance (metres) over every overlap frame where both exist, their projections agree
+        within twice ``ransac_threshold_px`` in the cameras that see both at the boundary, and
+        each is the other's nearest such candidate. 5 mm: on the demo the joined trajectories then
+        step across the join as their ground-truth points move within 2.0 mm (median; 1.0-1.4
+        for ordinary steps), against 5 mm at 1 cm, which joins twice as many, mostly
+        neighbouring points.
     matching : MatchingConfig
         Feature detection and matching (table ``[reconstruct.matching]``).
     densify : DensifyConfig
@@ -147,6 +173,9 @@ class ReconstructConfig:
     expand_max_angle_deg: float = 40.0
     expand_px: float = 2.0
     seed: int = 0
+    chunk_frames: int = 100
+    chunk_overlap: int = 5
+    chunk_join_m: float = 0.005
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     views: ViewsConfig = field(default_factory=ViewsConfig)
@@ -177,6 +206,10 @@ class ReconstructConfig:
             "match_every": self.match_every >= 1,
             "expand_max_angle_deg": 0 < self.expand_max_angle_deg <= 180,
             "expand_px": self.expand_px > 0,
+            "chunk_frames": self.chunk_frames >= 0,
+            "chunk_overlap": self.chunk_overlap >= 0
+            and (self.chunk_frames == 0 or self.chunk_overlap < self.chunk_frames),
+            "chunk_join_m": self.chunk_join_m > 0,
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:

@@ -284,6 +284,27 @@ class FrameStore:
         _check_live(path, state)
         return state
 
+    def read_state_at(self, t: int) -> TrackState:
+        """The tracker's state after frame ``t``: ``live.npz``'s if of frame t, else that of a
+        format 1 ``state/<t>.npz``.
+
+        Raises
+        ------
+        FileFormatError
+            If neither holds frame t's state.
+        """
+        live = self.read_live()
+        if live is not None and live.frame == t:
+            return live
+        if self.record_path(t).is_file() and self.record_version(t) == 1:
+            return self.read_v1_live(t)
+        raise FileFormatError(
+            self.live_path,
+            f"no tracker state of frame {t} (it holds "
+            + (f"frame {live.frame}" if live is not None else "none: the file is missing")
+            + ")",
+        )
+
     # -- resuming --------------------------------------------------------------------------------
     def resume(self, frames: range) -> tuple[int, TrackState | None]:
         """Where a run of ``frames`` resumes: the frames done, and the live state after them.

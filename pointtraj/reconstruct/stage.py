@@ -5,29 +5,42 @@ into a work folder, writing each frame's point cloud and tracker state atomicall
 interrupted run resumes from the last complete frame (the files: :mod:`.framestore`), and
 assembles the ragged :class:`~pointtraj.trajectories.Trajectories` store from the per-frame
 record files (:meth:`.framestore.FrameStore.assemble`; :func:`assemble_trajectories` does the
-same from records in memory).
+same from records in memory). A long
+frame range is tracked in temporal chunks, one executor task each (:func:`reconstruct_chunk`),
+joined across their boundaries (:mod:`~.chunks`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
+import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from ..atomic import TEMP_PREFIX, record_installed
+from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError
+from ..executor import Executor, SerialExecutor
 from ..trajectories import Trajectories, frame_pointcloud, write_cloud_ply
+from .chunks import Bridge, Chunk, merge_chunks, plan_chunks
 from .config import ReconstructConfig
 from .framestore import FrameStore
 from .stitch import stitch_trajectories
 from .survive import trim_one_view_tails
-from .track import FrameRecord, Tracker
+from .track import FrameRecord, Tracker, TrackState
 
 __all__ = [
+    "ChunkResult",
+    "ChunkTask",
     "assemble_trajectories",
     "reconstruct_capture",
+    "reconstruct_chunk",
 ]
 
 logger = logging.getLogger(__name__)
@@ -103,34 +116,255 @@ def write_frame_cloud(
     write_cloud_ply(path, pcd, record.visibility if visibility_form == "sparse" else None)
 
 
+@dataclass(frozen=True)
+class ChunkTask:
+    """One temporal chunk to track: an executor task for :func:`reconstruct_chunk`.
+
+    Attributes
+    ----------
+    capture : str or Capture
+        The capture folder, which the worker opens with ``rig`` (workers share the filesystem),
+        or, where there is no folder, the capture itself (serial runs).
+    rig : CameraRig
+        The calibration the capture was opened with.
+    folder : str
+        The chunk's sub-folder of the work folder (``state/``, ``trajectories.npz``,
+        ``tail.npz``).
+    start, stop : int
+        The frames tracked, warm-up included.
+    tail_stop : int
+        The trajectories alive at ``stop - 1`` are carried on, without new points, up to this
+        frame (the next chunk's end; ``stop``: no tail, the last chunk).
+    config : ReconstructConfig
+    """
+
+    capture: Any
+    rig: CameraRig
+    folder: str
+    start: int
+    stop: int
+    tail_stop: int
+    config: ReconstructConfig
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """What :func:`reconstruct_chunk` gives back (small: the store stays in its file).
+
+    Attributes
+    ----------
+    store : str
+        The chunk's ``trajectories.npz``.
+    tail : str or None
+        Its ``tail.npz`` (None for the last chunk).
+    tracked : int
+        Frames tracked by this call (0 when the chunk was already complete).
+    stops : dict of str to int
+        Trajectories ended, by reason, in the frames tracked by this call.
+    cpu_s : float
+        CPU seconds of this call in its process.
+    """
+
+    store: str
+    tail: str | None
+    tracked: int
+    stops: dict[str, int]
+    cpu_s: float
+
+
+def reconstruct_chunk(task: ChunkTask) -> ChunkResult:
+    """Track one temporal chunk into its folder, resuming it; then its tail.
+
+    Writes ``state/`` per frame and ``trajectories.npz`` (the chunk's store) once its frames
+    are done, then ``tail.npz``: the trajectories alive at its last frame carried on over the
+    next chunk's frames by the same tracker, without new points, until they end
+    (:class:`~.chunks.Bridge`, joined to the next chunk by :func:`~.chunks.join_tail`). A
+    chunk whose files exist is not recomputed; an interrupted one resumes after its last
+    complete frame (its ``state/`` files).
+
+    Parameters
+    ----------
+    task : ChunkTask
+
+    Returns
+    -------
+    ChunkResult
+    """
+    cpu0 = time.process_time()
+    folder = Path(task.folder)
+    out = folder / "trajectories.npz"
+    tail = folder / "tail.npz" if task.tail_stop > task.stop else None
+    if out.is_file() and (tail is None or tail.is_file()):
+        return ChunkResult(str(out), tail and str(tail), 0, {}, 0.0)
+    capture = task.capture
+    if isinstance(capture, (str, os.PathLike)):
+        from ..session import Capture
+
+        capture = Capture.open(capture, rig=task.rig, strict=False)
+    frames = range(task.start, task.stop)
+    tracked, stops = 0, {}
+    if not out.is_file():
+        traj, tracker, resumed = _track_frames(capture, folder, frames, task.config)
+        traj.save(out)
+        tracked, stops = len(frames) - resumed, dict(tracker.stops)
+    if tail is not None:
+        state = FrameStore(folder, len(capture.rig)).read_state_at(task.stop - 1)
+        _carry_on(capture, state, task.tail_stop, task.config).save(tail)
+    return ChunkResult(str(out), tail and str(tail), tracked, stops, time.process_time() - cpu0)
+
+
+def _carry_on(capture, state: TrackState, stop: int, cfg: ReconstructConfig) -> Bridge:
+    """Track the live trajectories of a state on to ``stop``, without new points (no matching,
+    no densification), until they end: a chunk's tail (:class:`~.chunks.Bridge`, no joins).
+    """
+    rig = capture.rig
+    names = list(rig.names)
+    carry_cfg = dataclasses.replace(
+        cfg,
+        match_every=2**62,  # never at the frames stepped here: no new points
+        densify=dataclasses.replace(cfg.densify, enabled=False),
+    )
+    tracker = Tracker(rig, carry_cfg, state=state, first_frame=state.frame)
+    rows: list[FrameRecord] = []
+    if len(state):
+        tracker.set_previous_images([capture.read(n, state.frame) for n in names])
+    for t in range(state.frame + 1, stop):
+        if len(tracker.state) == 0:
+            break
+        rec = tracker.step(t, [capture.read(n, t) for n in names])
+        old = rec.ids < state.next_id  # (no new points: every one)
+        rows.append(
+            FrameRecord(
+                t, rec.ids[old], rec.xyz[old], rec.visibility[old], rec.error[old], rec.color[old]
+            )
+        )
+    C = len(rig)
+    return Bridge(
+        ids=np.concatenate([r.ids for r in rows] or [np.zeros(0)]).astype(np.int64),
+        frame=np.concatenate([np.full(len(r), r.frame) for r in rows] or [np.zeros(0)]).astype(
+            np.int64
+        ),
+        xyz=np.concatenate([r.xyz for r in rows] or [np.zeros((0, 3))]).astype(np.float32),
+        visibility=np.concatenate([r.visibility for r in rows] or [np.zeros((0, C))]).astype(
+            np.uint8
+        ),
+        error=np.concatenate([r.error for r in rows] or [np.zeros(0)]).astype(np.float32),
+        color=np.concatenate([r.color for r in rows] or [np.zeros((0, 3))]).astype(np.uint8),
+        joins=np.zeros((0, 3), np.int64),
+    )
+
+
+def _track_frames(
+    capture,
+    folder: Path,
+    frames: range,
+    cfg: ReconstructConfig,
+    *,
+    write_clouds: bool = False,
+    on_frame: Callable[[FrameRecord | None], None] | None = None,
+) -> tuple[Trajectories, Tracker, int]:
+    """Track frames with one tracker into ``folder/state/`` (and ``folder/clouds/``), resuming.
+
+    Each frame's record goes to ``state/<t>.npz`` and the tracker's state replaces
+    ``state/live.npz`` (:class:`~.framestore.FrameStore`); no record stays in memory, and the
+    store is assembled from the record files at the end.
+
+    Returns
+    -------
+    store : Trajectories
+        The frames' store (before stitching), resumed frames included.
+    tracker : Tracker
+        Its ``stops`` count the trajectories ended in the frames tracked now.
+    resumed : int
+        Frames complete before this call.
+    """
+    rig = capture.rig
+    names = list(rig.names)
+    store = FrameStore(folder, len(rig))
+    resumed, state = store.resume(frames)
+    if on_frame is not None:
+        for t in frames[:resumed]:
+            on_frame(store.read_record(t))
+    if resumed:
+        logger.info(
+            "%s: resuming after frame %d (%d frames done)", folder, frames[resumed - 1], resumed
+        )
+    tracker = Tracker(rig, cfg, state=state, first_frame=frames.start)
+    if state is not None and resumed < len(frames):
+        tracker.set_previous_images([capture.read(n, state.frame) for n in names])
+    for t in frames[resumed:]:
+        images = [capture.read(n, t) for n in names]
+        rec = tracker.step(t, images)
+        if len(rec.ids) == 0:
+            logger.warning(
+                "frame %d: no point reconstructed (black or featureless images?); "
+                "writing an empty cloud and going on",
+                t,
+            )
+        if write_clouds:
+            write_frame_cloud(folder / "clouds" / f"{t:06d}.ply", rec, cfg.cloud_visibility)
+        store.save_frame(rec, tracker.state)
+        if on_frame is not None:
+            on_frame(rec)
+    traj = store.assemble(frames, names, float(capture.fps), int(capture.num_frames))
+    return traj, tracker, resumed
+
+
+def _log_stops(stops: dict[str, int]) -> None:
+    ended = sum(stops.values())
+    if ended:
+        logger.info(
+            "%d trajectories ended in the frames reconstructed now: %s",
+            ended,
+            ", ".join(f"{k} {100 * v / ended:.1f} %" for k, v in stops.items()),
+        )
+
+
 def reconstruct_capture(
     capture,
     work: str | os.PathLike,
     frames: range | None = None,
     config: ReconstructConfig | None = None,
     *,
-    on_frame: Callable[[FrameRecord], None] | None = None,
+    on_frame: Callable[[FrameRecord | None], None] | None = None,
+    executor: Executor | None = None,
 ) -> Trajectories:
     """Reconstruct trajectories of a capture into a work folder, resuming where it stopped.
 
-    Writes ``clouds/<t:06d>.ply`` and the frame's record ``state/<t:06d>.npz`` per frame, then
-    replaces ``state/live.npz`` (the tracker's state, which marks the frame complete;
+    A frame range of at most ``config.chunk_frames`` frames is one chunk: it writes
+    ``clouds/<t:06d>.ply`` and the frame's record ``state/<t:06d>.npz`` per frame, then replaces
+    ``state/live.npz`` (the tracker's state, which marks the frame complete;
     :class:`~.framestore.FrameStore`), and at the end ``trajectories.npz``, assembled from the
-    record files. Frames up to the live state's (with records contiguously from
+    record files; frames up to the live state's (with records contiguously from
     ``frames.start``) are not recomputed. No record stays in memory between frames.
+
+    A longer range is tracked in temporal chunks (:func:`~.chunks.plan_chunks`), one executor
+    task each (:func:`reconstruct_chunk`), into ``chunks/<start>-<stop>/`` (``state/`` per
+    frame, ``trajectories.npz`` when complete, then ``tail.npz``: its trajectories carried on
+    over the next chunk's frames); the stores are joined across the boundaries
+    (:func:`~.chunks.merge_chunks`), and ``clouds/`` and ``trajectories.npz`` are written from
+    the result. Complete chunks are not recomputed; an interrupted one resumes
+    from its last complete frame. The output does not depend on the executor.
+
+    In both cases the store is then stitched (:mod:`~.stitch`) and its one-view tails trimmed
+    (:func:`~.survive.trim_one_view_tails`).
 
     Parameters
     ----------
     capture : pointtraj.session.Capture
-        With ``rig``, ``camera_names``, ``num_frames``, ``fps`` and ``read(camera, frame)``.
+        With ``rig``, ``camera_names``, ``num_frames``, ``fps`` and ``read(camera, frame)``;
+        chunks on other processes open it again from its ``path`` (a folder every worker
+        reads).
     work : path-like
         The work folder.
     frames : range, optional
         Frames to process (step 1), default all.
     config : ReconstructConfig, optional
     on_frame : callable, optional
-        Called with each frame's record (also for resumed frames), e.g. to advance a progress
-        bar.
+        Called once per frame, e.g. to advance a progress bar: with the frame's record in a
+        one-chunk run (also for resumed frames), with None for each frame of a finished chunk.
+    executor : Executor, optional
+        Runs the chunks (default: serially, in this process).
 
     Returns
     -------
@@ -152,37 +386,14 @@ def reconstruct_capture(
         raise ValidationError(
             f"frames {frames.start}:{frames.stop} must be a non-empty range within [0, {T})"
         )
-    store = FrameStore(work, len(rig))
-    done, state = store.resume(frames)
-    for t in frames[:done]:
-        if on_frame is not None:
-            on_frame(store.read_record(t))
-    if done:
-        logger.info("resuming after frame %d (%d frames done)", frames[done - 1], done)
-    tracker = Tracker(rig, cfg, state=state, first_frame=frames.start)
-    if state is not None and done < len(frames):
-        tracker.set_previous_images([capture.read(n, state.frame) for n in names])
-    for t in frames[done:]:
-        images = [capture.read(n, t) for n in names]
-        rec = tracker.step(t, images)
-        if len(rec.ids) == 0:
-            logger.warning(
-                "frame %d: no point reconstructed (black or featureless images?); "
-                "writing an empty cloud and going on",
-                t,
-            )
-        write_frame_cloud(work / "clouds" / f"{t:06d}.ply", rec, cfg.cloud_visibility)
-        store.save_frame(rec, tracker.state)
-        if on_frame is not None:
-            on_frame(rec)
-    ended = sum(tracker.stops.values())
-    if ended:
-        logger.info(
-            "%d trajectories ended in the frames reconstructed now: %s",
-            ended,
-            ", ".join(f"{k} {100 * v / ended:.1f} %" for k, v in tracker.stops.items()),
+    chunks = plan_chunks(frames, cfg.chunk_frames, cfg.chunk_overlap)
+    if len(chunks) == 1:
+        traj, tracker, _ = _track_frames(
+            capture, work, frames, cfg, write_clouds=True, on_frame=on_frame
         )
-    traj = store.assemble(frames, names, float(capture.fps), T)
+        _log_stops(tracker.stops)
+    else:
+        traj = _reconstruct_chunks(capture, work, chunks, cfg, executor, on_frame)
     stitched, new_id = stitch_trajectories(traj, cfg.stitch)
     final, dropped = trim_one_view_tails(stitched, cfg.visibility_threshold, cfg.min_views)
     if dropped:
@@ -190,14 +401,76 @@ def reconstruct_capture(
             "%d one-view point-frames at trajectories' ends dropped (no second view returned)",
             dropped,
         )
-    if final is not traj:  # the clouds carry the stitched trajectories' ids and rows
+    form = cfg.cloud_visibility
+    if len(chunks) > 1:  # no frame has a cloud yet
+        for t in frames:
+            final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply", visibility_form=form)
+    elif final is not traj:  # the clouds carry the stitched trajectories' ids and rows
         for t in frames:
             if _frame_changed(traj, final, t):
-                final.write_frame_ply(
-                    t, work / "clouds" / f"{t:06d}.ply", visibility_form=cfg.cloud_visibility
-                )
+                final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply", visibility_form=form)
     final.save(work / "trajectories.npz")
     return final
+
+
+def _reconstruct_chunks(
+    capture,
+    work: Path,
+    chunks: list[Chunk],
+    cfg: ReconstructConfig,
+    executor: Executor | None,
+    on_frame: Callable[[FrameRecord | None], None] | None,
+) -> Trajectories:
+    """Track every chunk through the executor and merge their stores (see
+    :func:`reconstruct_capture`)."""
+    path = getattr(capture, "path", None)
+    source = str(path) if path is not None and Path(path).is_dir() else capture
+    tasks = [
+        ChunkTask(
+            source,
+            capture.rig,
+            str(work / "chunks" / c.name),
+            c.start,
+            c.stop,
+            chunks[k + 1].stop if k + 1 < len(chunks) else c.stop,
+            cfg,
+        )
+        for k, c in enumerate(chunks)
+    ]
+    executor = executor or SerialExecutor()
+    logger.info(
+        "tracking %d frames in %d chunks of %d frames (%d warm-up frames each) on %r",
+        chunks[-1].stop - chunks[0].start,
+        len(chunks),
+        cfg.chunk_frames,
+        cfg.chunk_overlap,
+        executor,
+    )
+    stops: dict[str, int] = {}
+    stores: list[Trajectories] = []
+    tails: list[Bridge | None] = []
+    for chunk, result in zip(chunks, executor.map(reconstruct_chunk, tasks, label="reconstruct")):
+        for f in sorted(Path(work / "chunks" / chunk.name).rglob("*")):
+            if f.is_file() and not f.name.startswith(TEMP_PREFIX):
+                record_installed(f)  # a worker wrote them: the work folder's manifest lists them
+        for k, v in result.stops.items():
+            stops[k] = stops.get(k, 0) + v
+        stores.append(Trajectories.load(result.store))
+        tails.append(Bridge.load(result.tail) if result.tail else None)
+        if on_frame is not None:
+            for _ in range(chunk.stop - chunk.boundary):
+                on_frame(None)
+    _log_stops(stops)
+    merged, _ = merge_chunks(
+        stores,
+        chunks,
+        capture.rig,
+        cfg.chunk_join_m,
+        2 * cfg.ransac_threshold_px,
+        cfg.visibility_threshold,
+        tails=tails[:-1],
+    )
+    return merged
 
 
 def _frame_changed(before: Trajectories, after: Trajectories, t: int) -> bool:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import itertools
 import json
 import logging
 import math
@@ -35,6 +36,7 @@ from .scene import floor_grid, frame_geometry, orbit_cameras, plane_basis
 from .video import read_png, write_png, write_video
 
 if TYPE_CHECKING:
+    from ..executor import Executor
     from ..session import Capture
 
 __all__ = ["RenderOutput", "RenderResult", "render_work"]
@@ -350,6 +352,118 @@ def _prepare_folder(folder: Path, settings: dict, owned: set[Path] | None = None
     return False
 
 
+@dataclass(frozen=True)
+class _DrawJob:
+    """What drawing any frame of a render needs (sent once to each worker)."""
+
+    traj: Trajectories
+    colors: np.ndarray  # (M, 3) uint8
+    cfg: RenderConfig
+    rig: CameraRig | None
+    stage: _Stage | None
+    capture: Capture | None  # pickled once to each worker, which reads its own files
+    legend_names: tuple[str, ...]
+    legend_colors: np.ndarray  # (L, 3) uint8
+    base_fps: float
+    grid_color: np.ndarray  # (3,) uint8
+    bg: np.ndarray  # (3,) uint8
+
+
+def _draw_frame(
+    job: _DrawJob, kind: str, name: str, t: int, renderer: TrajectoryRenderer | None
+) -> np.ndarray:
+    """Frame ``t`` of one output (a view or an overlay), annotated: (H, W, 3) uint8."""
+    cfg = job.cfg
+
+    def annotate(img: np.ndarray, label: str) -> np.ndarray:
+        if cfg.legend:
+            img = draw_legend(img, list(job.legend_names), job.legend_colors)
+        if cfg.caption:
+            img = draw_caption(img, f"{label}   frame {t}   {t / job.base_fps:.2f} s")
+        return img
+
+    if kind == "overlay":
+        img = draw_overlay(
+            job.capture.read(name, t),
+            job.rig[name],
+            job.traj,
+            t,
+            job.colors,
+            cfg.tail,
+            cfg.overlay_radius,
+        )
+        return annotate(img, f"{name} overlay")
+    cam = _orbit_camera(job.stage, cfg, t) if name == ORBIT else job.rig[name]
+    pts, pc, seg, sc = frame_geometry(job.traj, t, job.colors, cfg.tail, cfg.tail_fade, job.bg)
+    if cfg.floor:
+        seg = np.concatenate([job.stage.grid.astype(np.float32), seg])
+        sc = np.concatenate([np.tile(job.grid_color, (len(job.stage.grid), 1)), sc])
+    if renderer is not None:
+        img = renderer.render(cam, pts, pc, seg, sc)
+    else:
+        canvas = np.empty((cam.height, cam.width, 3), np.uint8)
+        canvas[:] = job.bg
+        img = draw_scene(
+            canvas,
+            cam,
+            pts,
+            pc,
+            seg,
+            sc,
+            radius=int(round((cfg.point_size - 1) / 2)),
+            line_width=max(1, int(round(cfg.line_width))),
+        )
+    return annotate(img, name)
+
+
+def _draw_task(
+    job: _DrawJob,
+    item: tuple[str, str, tuple[int, ...], tuple[Path, ...], bool],
+    renderer: TrajectoryRenderer | None = None,
+) -> list[tuple[np.ndarray | None, float]]:
+    """Draw frames of one output and write their PNGs atomically (a task of
+    :func:`render_work`).
+
+    Parameters
+    ----------
+    job : _DrawJob
+    item : (kind, name, frames, paths, want_images)
+    renderer : TrajectoryRenderer, optional
+        The output's renderer, here. On a worker (None) an Open3D view gets a renderer made and
+        closed by this task, in the task's thread (Filament aborts a process that ends with a
+        renderer open, or closes it from another thread).
+
+    Returns
+    -------
+    list of (image, seconds)
+        Per frame, the (H, W, 3) uint8 image if ``want_images`` (for the video), else None, and
+        the seconds spent drawing and writing it.
+    """
+    kind, name, frames, paths, want_images = item
+    own = None
+    if renderer is None and kind == "view" and job.cfg.engine == "open3d":
+        cfg = job.cfg
+        size = cfg.size if name == ORBIT else job.rig[name].size
+        renderer = own = TrajectoryRenderer(
+            size, cfg.point_size, cfg.line_width, tuple(job.bg / 255.0)
+        )
+    try:
+        out = []
+        for t, path in zip(frames, paths, strict=True):
+            t0 = time.perf_counter()
+            img = _draw_frame(job, kind, name, t, renderer)
+            write_png(path, img)
+            out.append(((img if want_images else None), time.perf_counter() - t0))
+        return out
+    finally:
+        if own is not None:
+            own.close()
+
+
+#: Frames per render task on a cluster: at most this many (the images come back together).
+_FRAMES_PER_TASK = 8
+
+
 @locked("pointtraj render")
 def render_work(
     work: str | os.PathLike,
@@ -357,6 +471,7 @@ def render_work(
     *,
     force: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
+    executor: Executor | None = None,
 ) -> RenderResult:
     """Render a work folder's semantic trajectories into ``WORK/renders/``.
 
@@ -378,6 +493,10 @@ def render_work(
         Re-render frames even when they are up to date.
     progress : callable, optional
         ``progress(name, done, total)`` after each image; ``name`` is the output being drawn.
+    executor : Executor, optional
+        Where the frames are drawn and written (default: here, one after the other). On a
+        Dask cluster each worker draws frames with its own off-screen renderer and writes
+        their PNGs, which come back in order for the videos; the images are the same.
 
     Returns
     -------
@@ -451,15 +570,20 @@ def render_work(
     base_fps = capture.fps if capture is not None else traj.fps
     fps = cfg.fps or base_fps / cfg.stride
 
-    def annotate(img: np.ndarray, label: str, t: int) -> np.ndarray:
-        if cfg.legend:
-            img = draw_legend(img, legend_names, legend_colors)
-        if cfg.caption:
-            img = draw_caption(img, f"{label}   frame {t}   {t / base_fps:.2f} s")
-        return img
-
-    def view_camera(name: str, t: int) -> Camera:
-        return _orbit_camera(stage, cfg, t) if name == ORBIT else rig[name]
+    job = _DrawJob(
+        traj=traj,
+        colors=colors,
+        cfg=cfg,
+        rig=rig,
+        stage=stage,
+        capture=capture,
+        legend_names=tuple(legend_names),
+        legend_colors=legend_colors,
+        base_fps=float(base_fps),
+        grid_color=grid_color,
+        bg=bg,
+    )
+    remote = executor is not None and not executor.local
 
     outputs = [
         RenderOutput(
@@ -480,58 +604,57 @@ def render_work(
     for out in outputs:
         fresh = _prepare_folder(out.folder, _settings(out.kind, out.name, scene, cfg), owned)
         renderer = None
-        if out.kind == "view" and cfg.engine == "open3d":
+        if not remote and out.kind == "view" and cfg.engine == "open3d":
             renderer = TrajectoryRenderer(
                 out.size, cfg.point_size, cfg.line_width, tuple(bg / 255.0)
             )
 
-        def draw(t: int, out: RenderOutput = out, renderer=renderer) -> np.ndarray:
-            if out.kind == "overlay":
-                cam = rig[out.name]
-                img = draw_overlay(
-                    capture.read(out.name, t), cam, traj, t, colors, cfg.tail, cfg.overlay_radius
-                )
-                return annotate(img, f"{out.name} overlay", t)
-            cam = view_camera(out.name, t)
-            pts, pc, seg, sc = frame_geometry(traj, t, colors, cfg.tail, cfg.tail_fade, bg)
-            if cfg.floor:
-                seg = np.concatenate([stage.grid.astype(np.float32), seg])
-                sc = np.concatenate([np.tile(grid_color, (len(stage.grid), 1)), sc])
-            if renderer is not None:
-                img = renderer.render(cam, pts, pc, seg, sc)
+        def draw(t: int, path: Path, out: RenderOutput = out, renderer=renderer) -> np.ndarray:
+            """Draw and write frame t here, or on the executor's worker."""
+            item = (out.kind, out.name, (t,), (path,), True)
+            if remote:
+                [(img, seconds)] = next(executor.map(_draw_task, [item], context=job))
             else:
-                canvas = np.empty((cam.height, cam.width, 3), np.uint8)
-                canvas[:] = bg
-                img = draw_scene(
-                    canvas,
-                    cam,
-                    pts,
-                    pc,
-                    seg,
-                    sc,
-                    radius=int(round((cfg.point_size - 1) / 2)),
-                    line_width=max(1, int(round(cfg.line_width))),
-                )
-            return annotate(img, out.name, t)
+                [(img, seconds)] = _draw_task(job, item, renderer)
+            out.render_seconds += seconds
+            return img
 
         def images(out: RenderOutput = out, draw=draw, fresh: bool = fresh) -> Iterator[np.ndarray]:
             nonlocal done
+            paths = {t: out.folder / f"{t:06d}.png" for t in frames}
+            keep = {t: fresh and not force and paths[t].is_file() for t in frames}
+            ahead = None
+            if remote:  # the frames to draw go to the workers now, and come back in order
+                todo = [t for t in frames if not keep[t]]
+                n = max(1, min(_FRAMES_PER_TASK, -(-len(todo) // (4 * executor.workers))))
+                chunks = [todo[k : k + n] for k in range(0, len(todo), n)]
+                ahead = itertools.chain.from_iterable(
+                    executor.map(
+                        _draw_task,
+                        [
+                            (out.kind, out.name, tuple(c), tuple(paths[t] for t in c), cfg.video)
+                            for c in chunks
+                        ],
+                        label=f"{out.kind} {out.name}",
+                        context=job,
+                    )
+                )
             for t in frames:
-                path = out.folder / f"{t:06d}.png"
-                keep = fresh and not force and path.is_file()
                 img = None
-                if keep and cfg.video:
+                kept = keep[t]
+                if kept and cfg.video:
                     try:
-                        img = read_png(path)
+                        img = read_png(paths[t])
                     except FileFormatError:
-                        keep = False
-                if keep:
+                        kept = False
+                if kept:
                     out.skipped += 1
                 else:
-                    t0 = time.perf_counter()
-                    img = draw(t)
-                    write_png(path, img)
-                    out.render_seconds += time.perf_counter() - t0
+                    if ahead is not None and not keep[t]:
+                        img, seconds = next(ahead)
+                        out.render_seconds += seconds
+                    else:
+                        img = draw(t, paths[t])
                     out.rendered += 1
                 done += 1
                 if progress is not None:

@@ -11,6 +11,11 @@ to per-trajectory (M, K) accumulators; then the maps are dropped. Memory is ther
 O(M K + C h w K + chunk C K) and does not grow with the number of frames. Point-frames for which
 pooling yields NaN (no usable camera) are left out of the average.
 
+Each frame (recognition, sampling, pooling) is a task of an executor (:mod:`pointtraj.executor`):
+serial by default, or on Dask workers that each load the recogniser once. Only the frame's
+pooled (N, K) confidences come back, in frame order, and are accumulated here, so the map is
+the same on any executor.
+
 For the temporal-consistency study the pooled per-frame confidences of a seeded random subset
 of trajectories (all of them when they fit in :attr:`SemanticsConfig.sample_budget_mb`) are kept
 as well (:attr:`SemanticMap.samples`). The file format is ``data_specs/semantic_map.md``.
@@ -30,8 +35,10 @@ import numpy as np
 
 from ..atomic import save_npz_atomic
 from ..errors import FileFormatError, ValidationError, check_array
+from ..executor import Executor, SerialExecutor
 from ..trajectories import Trajectories
 from .pooling import POOLINGS, pool_views
+from .recognizers import RecognizerSpec
 from .recognizers.base import ImageContext, Recognizer
 from .sampling import sample_confidences
 
@@ -474,6 +481,7 @@ def build_semantic_map(
     frames: range | None = None,
     capture_dir: str | os.PathLike | None = None,
     progress: Callable[[str, int, int], None] | None = None,
+    executor: Executor | None = None,
 ) -> SemanticMap:
     """Build the 3D semantic map of trajectories from a capture's images.
 
@@ -484,8 +492,10 @@ def build_semantic_map(
         trajectories' cameras.
     trajectories : Trajectories or path-like
         The trajectory store (or its ``trajectories.npz``); its visibility gives V.
-    recognizer : Recognizer
-        Produces L2D per image; its ``class_names`` are the map's classes.
+    recognizer : Recognizer or RecognizerSpec
+        Produces L2D per image; its ``class_names`` are the map's classes. On a Dask executor
+        give a :class:`~pointtraj.semantics.recognizers.RecognizerSpec`: each worker then makes
+        the recogniser (loads its model) once, instead of receiving it pickled.
     poolings : tuple of str, optional
         Overrides ``config.poolings``.
     eps_e : float, optional
@@ -500,6 +510,10 @@ def build_semantic_map(
     progress : callable, optional
         ``progress("semantic map", done, total)``: ``done`` of the ``total`` frames, from 0
         before the first frame to ``total`` after the last (the command line draws a bar).
+    executor : Executor, optional
+        Where the frames are recognised, sampled and pooled (default: serially, here); the map
+        is the same on any executor (each frame's pooled confidences come back in frame order
+        and are summed here).
 
     Returns
     -------
@@ -540,13 +554,11 @@ def build_semantic_map(
             f"({len(capture.rig)} cameras)"
         )
     rig = capture.rig.subset(names)
-    sizes = np.asarray(rig.sizes)  # (C, 2) (W, H)
     class_names = tuple(recognizer.class_names)
+    recognizer_name = recognizer.name
     K = len(class_names)
     M, C = len(trajectories), len(names)
     pools = config.poolings
-    eps = config.eps_e
-    needs_image = getattr(recognizer, "needs_image", True)
     ctx_capture = None if capture_dir is None else os.fspath(capture_dir)
 
     sums = {p: np.zeros((M, K), dtype=np.float64) for p in pools}
@@ -570,57 +582,39 @@ def build_semantic_map(
     )
 
     frames = range(trajectories.num_frames) if frames is None else frames
-    for i, t in enumerate(frames):
-        if progress is not None:
-            progress("semantic map", i, len(frames))
-        fs = trajectories.frame(int(t))
-        N = len(fs.track_id)
-        if N == 0:
-            continue
-        V = fs.visibility  # (N, C)
-        if config.visibility == "geometric":
-            V = geometric_visibility(rig, fs.xyz, V, config)
-        if "average" in pools:
-            needed = np.ones(C, dtype=bool)
-        else:
-            needed = (V > eps).any(axis=0)  # (C,)
-        # This frame's maps, one per camera (coarse: a few MB each); dropped after the frame.
-        maps: list[np.ndarray | None] = [None] * C
-        for c in np.flatnonzero(needed):
-            image = capture.read(names[c], int(t)) if needs_image else None
-            L2D = recognizer.recognize(
-                image, ImageContext(camera=names[c], frame=int(t), capture=ctx_capture)
-            )
-            if L2D.ndim != 3 or L2D.shape[2] != K:
-                raise ValidationError(
-                    f"recogniser {recognizer.name!r} returned shape {L2D.shape} for camera "
-                    f"{names[c]!r} frame {t}; expected (h, w, {K})"
-                )
-            maps[c] = L2D
-        for start in range(0, N, config.chunk_size):
-            sl = slice(start, min(N, start + config.chunk_size))
-            _pool_chunk(
-                fs.xyz[sl],
-                V[sl],
-                fs.track_id[sl],
-                int(t),
-                rig,
-                sizes,
-                maps,
-                pools,
-                eps,
-                sums,
-                counts,
-                slot,
-                sample_offsets,
-                first_frame,
-                samples,
-                config.background_vote,
-            )
-        del maps
-
+    executor = executor or SerialExecutor()
+    job = _FrameJob(
+        capture=capture,
+        trajectories=trajectories,
+        recognizer=recognizer,
+        rig=rig,
+        names=tuple(names),
+        config=config,
+        K=K,
+        capture_dir=ctx_capture,
+    )
     if progress is not None:
-        progress("semantic map", len(frames), len(frames))
+        progress("semantic map", 0, len(frames))
+    pooled_frames = executor.map(
+        _pool_frame,
+        [int(t) for t in frames],
+        label="semantic map",
+        progress=progress,
+        context=job,
+    )
+    for t, pooled in zip(frames, pooled_frames, strict=True):
+        if pooled is None:  # no point alive, or no camera needed
+            continue
+        track_id = trajectories.row_track[trajectories.frame_rows(int(t))]
+        sel = slot[track_id]  # (N,)
+        has_sample = sel >= 0
+        rows = sample_offsets[sel[has_sample]] + (int(t) - first_frame[track_id[has_sample]])
+        for p in pools:
+            ok = np.isfinite(pooled[p]).all(axis=1)
+            sums[p][track_id[ok]] += pooled[p][ok]  # track ids are unique within a frame
+            counts[p][track_id[ok]] += 1
+            if rows.size:
+                samples[p][rows] = pooled[p][has_sample]
 
     L3D = {}
     for p in pools:
@@ -636,8 +630,8 @@ def build_semantic_map(
         sample_offsets=sample_offsets,
         sample_first_frame=first_frame[sample_tracks].astype(np.int64),
         samples=samples,
-        eps_e=eps,
-        recognizer=recognizer.name,
+        eps_e=config.eps_e,
+        recognizer=recognizer_name,
         fps=float(trajectories.fps),
     )
 
@@ -694,43 +688,91 @@ def sample_views(
     return L, in_image
 
 
+@dataclass(frozen=True)
+class _FrameJob:
+    """What every frame task of :func:`build_semantic_map` shares (sent once to each worker)."""
+
+    capture: Any  # a CaptureLike (pickled once to each worker; a Capture reads its own files)
+    trajectories: Trajectories
+    recognizer: Recognizer | RecognizerSpec
+    rig: Any
+    names: tuple[str, ...]
+    config: SemanticsConfig
+    K: int
+    capture_dir: str | None
+
+
+def _pool_frame(job: _FrameJob, t: int) -> dict[str, np.ndarray] | None:
+    """One frame: recognise the cameras it needs, sample and pool its points (a task).
+
+    Returns
+    -------
+    dict of str to (N, K) float32 ndarray, or None
+        Per pooling, the pooled confidences of the frame's N points, in the order of
+        ``trajectories.frame(t)`` (NaN rows: no usable camera); None if nothing is pooled.
+    """
+    config, K, names, rig = job.config, job.K, job.names, job.rig
+    capture = job.capture
+    recognizer = job.recognizer
+    if isinstance(recognizer, RecognizerSpec):
+        recognizer = recognizer.cached()
+    fs = job.trajectories.frame(int(t))
+    N, C = len(fs.track_id), len(names)
+    if N == 0:
+        return None
+    pools, eps = config.poolings, config.eps_e
+    V = fs.visibility  # (N, C)
+    if config.visibility == "geometric":
+        V = geometric_visibility(rig, fs.xyz, V, config)
+    needed = np.ones(C, dtype=bool) if "average" in pools else (V > eps).any(axis=0)  # (C,)
+    if not needed.any():
+        return None
+    needs_image = getattr(recognizer, "needs_image", True)
+    # This frame's maps, one per camera (coarse: a few MB each); dropped after the frame.
+    maps: list[np.ndarray | None] = [None] * C
+    for c in np.flatnonzero(needed):
+        image = capture.read(names[c], int(t)) if needs_image else None
+        L2D = recognizer.recognize(
+            image, ImageContext(camera=names[c], frame=int(t), capture=job.capture_dir)
+        )
+        if L2D.ndim != 3 or L2D.shape[2] != K:
+            raise ValidationError(
+                f"recogniser {recognizer.name!r} returned shape {L2D.shape} for camera "
+                f"{names[c]!r} frame {t}; expected (h, w, {K})"
+            )
+        maps[c] = L2D
+    sizes = np.asarray(rig.sizes)  # (C, 2) (W, H)
+    out = {p: np.empty((N, K), np.float32) for p in pools}
+    for start in range(0, N, config.chunk_size):
+        sl = slice(start, min(N, start + config.chunk_size))
+        pooled = _pool_chunk(fs.xyz[sl], V[sl], rig, sizes, maps, pools, eps, config)
+        for p in pools:
+            out[p][sl] = pooled[p]
+    return out
+
+
 def _pool_chunk(
     xyz: np.ndarray,
     V: np.ndarray,
-    track_id: np.ndarray,
-    t: int,
     rig: Any,
     sizes: np.ndarray,
     maps: list[np.ndarray | None],
     pools: tuple[str, ...],
     eps: float,
-    sums: dict[str, np.ndarray],
-    counts: dict[str, np.ndarray],
-    slot: np.ndarray,
-    sample_offsets: np.ndarray,
-    first_frame: np.ndarray,
-    samples: dict[str, np.ndarray],
-    background_vote: float = 0.0,
-) -> None:
-    """Sample, pool and accumulate one chunk of one frame's points."""
-    if all(m is None for m in maps):
-        return
+    config: SemanticsConfig,
+) -> dict[str, np.ndarray]:
+    """Sample and pool one chunk of one frame's n points: per pooling, (n, K) float32."""
     L, in_image = sample_views(rig, sizes, maps, xyz, V, eps, only_visible="average" not in pools)
-    sel = slot[track_id]  # (n,)
-    has_sample = sel >= 0
-    rows = sample_offsets[sel[has_sample]] + (t - first_frame[track_id[has_sample]])
     nothing = None
-    if background_vote > 0:
+    if config.background_vote > 0:
         cams = in_image & (V.T > eps)  # (C, n)
         blank = cams & (L.max(axis=2) < NOTHING_CONFIDENCE)  # (C, n) sees no class there
         n_cams = cams.sum(axis=0)
-        nothing = (n_cams > 0) & (blank.sum(axis=0) >= background_vote * n_cams)  # (n,)
+        nothing = (n_cams > 0) & (blank.sum(axis=0) >= config.background_vote * n_cams)  # (n,)
+    out = {}
     for p in pools:
         pooled = pool_views(L, V, eps, p, in_image=in_image, camera_axis=0)  # (n, K)
         if nothing is not None:
             pooled[nothing] = 0.0
-        ok = np.isfinite(pooled).all(axis=1)
-        sums[p][track_id[ok]] += pooled[ok]  # track ids are unique within a frame
-        counts[p][track_id[ok]] += 1
-        if rows.size:
-            samples[p][rows] = pooled[has_sample]
+        out[p] = np.asarray(pooled, np.float32)
+    return out

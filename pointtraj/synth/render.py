@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -29,6 +30,7 @@ from ..atomic import remove_stale_temporaries
 from ..camera import CameraRig
 from ..config import load_toml, save_toml
 from ..errors import ValidationError
+from ..executor import Executor, worker_cache
 from .scenes import Scene
 
 __all__ = [
@@ -479,6 +481,7 @@ def render_capture(
     image_format: str = "jpg",
     settings: RenderSettings | None = None,
     on_frame: Callable[[int, bool], None] | None = None,
+    executor: Executor | None = None,
 ) -> CaptureSummary:
     """Render a synthetic capture folder with ground truth, streaming frame by frame.
 
@@ -505,6 +508,10 @@ def render_capture(
     settings : RenderSettings, optional
     on_frame : callable, optional
         ``on_frame(t, rendered)`` after each frame (``rendered`` False when skipped).
+    executor : Executor, optional
+        Where the frames are rendered and written, one task a frame (default: here, with a
+        writer thread). Every frame's noise is seeded by the frame and the camera, so the files
+        are the same on any executor; on a cluster ``out`` must be a path the workers share.
 
     Returns
     -------
@@ -594,11 +601,45 @@ def render_capture(
         fps=fps,
         num_frames=frames,
     )
+    rendered = skipped = 0
+    if executor is not None and not executor.local:
+        job = _FrameJob(str(out), preset, scene, int(seed), int(points_per_part), image_format)
+        timings = RenderTimings()
+        timings.extra.update(write=0.0, ground_truth=0.0)
+        todo = []
+        for t in range(frames):
+            if gtio.frame_file(out, t).is_file():
+                skipped += 1
+                if on_frame is not None:
+                    on_frame(t, False)
+            else:
+                todo.append(t)
+        for t, took in zip(
+            todo, executor.map(_render_frame_task, todo, label="synth", context=(job, settings))
+        ):
+            timings.build += took.build
+            timings.cast += took.cast
+            timings.shade += took.shade
+            for k, v in took.extra.items():
+                timings.extra[k] = timings.extra.get(k, 0.0) + v
+            rendered += 1
+            if on_frame is not None:
+                on_frame(t, True)
+        return CaptureSummary(
+            path=out,
+            cameras=len(rig),
+            frames=frames,
+            rendered=rendered,
+            skipped=skipped,
+            images=len(rig) * frames,
+            gt_points=len(points),
+            seconds=time.perf_counter() - start,
+            timings=timings,
+        )
     renderer = Renderer(sc, rig, seed=seed, settings=settings)
     timings = renderer.timings
     timings.extra.setdefault("write", 0.0)
     timings.extra.setdefault("ground_truth", 0.0)
-    rendered = skipped = 0
 
     def write_view(c: int, t: int, view: RenderedView) -> float:
         t1 = time.perf_counter()
@@ -657,3 +698,74 @@ def render_capture(
         seconds=time.perf_counter() - start,
         timings=timings,
     )
+
+
+@dataclass(frozen=True)
+class _FrameJob:
+    """A synthetic capture being rendered: what a frame task needs to remake its scene."""
+
+    out: str
+    preset: str
+    scene: str
+    seed: int
+    points_per_part: int
+    image_format: str
+
+
+def _frame_tools(job: _FrameJob, settings: RenderSettings | None) -> tuple[Any, ...]:
+    """(rig, fps, ground-truth points, renderer, writable capture), made once per worker."""
+    from ..session import Capture
+    from . import groundtruth as gtio
+    from .presets import PRESETS, make_rig
+    from .scenes import make_scene
+
+    def make() -> tuple[Any, ...]:
+        rig = make_rig(job.preset)
+        sc = make_scene(job.scene, job.seed)
+        fps = PRESETS[job.preset].fps
+        points = gtio.sample_ground_truth_points(sc, job.points_per_part, job.seed)
+        renderer = Renderer(sc, rig, seed=job.seed, settings=settings)
+        cap = Capture(Path(job.out), rig, None, 0, fps, True, job.image_format)
+        return rig, fps, points, renderer, cap
+
+    return worker_cache(("synth", job, repr(settings)), make)
+
+
+def _render_frame_task(context: tuple[_FrameJob, RenderSettings | None], t: int) -> RenderTimings:
+    """Render frame ``t`` of a synthetic capture and write its images, maps and ground truth
+    (a task of :func:`render_capture`; the frame's ground-truth file, written last, marks it
+    complete).
+
+    Returns
+    -------
+    RenderTimings
+        The seconds this frame took per step.
+    """
+    from . import groundtruth as gtio
+
+    job, settings = context
+    rig, fps, points, renderer, cap = _frame_tools(job, settings)
+    out = Path(job.out)
+    timings = renderer.timings = RenderTimings()
+    timings.extra.update(write=0.0, ground_truth=0.0)
+    time_s = t / fps
+    xyz = points.world(renderer.scene.poses(time_s))  # (M, 3)
+    proj = rig.project(xyz)
+    visible = np.zeros((len(points), len(rig)), bool)
+    free = None
+    for view in renderer.render_frame(t, time_s=time_s):
+        c = view.camera
+        t0 = time.perf_counter()
+        if free is None:
+            free = renderer.unoccluded(xyz)  # (M, C)
+        visible[:, c] = gtio.visibility_exact(
+            proj.pixels[c], proj.in_image[c] & free[:, c], points.geometry, view.geometry
+        )
+        t1 = time.perf_counter()
+        timings.extra["ground_truth"] += t1 - t0
+        cap.write_frame(c, t, view.image)
+        gtio.save_label_map(out, rig.names[c], t, view.label)
+        gtio.save_depth_map(out, rig.names[c], t, view.depth)
+        timings.extra["write"] += time.perf_counter() - t1
+    gtio.save_frame(out, t, xyz, visible)  # after every image and map of frame t
+    return timings

@@ -21,4 +21,7 @@ tau = 0.02
 [render]
 size = [320, 256]
 tail = 2
+
+[executor]
+workers = 1
 """

@@ -11,14 +11,17 @@ labels.toml) and the table's other keys added unless ``options`` already sets th
 from __future__ import annotations
 
 import importlib
+import json
 import logging
+import os
+from dataclasses import dataclass, field
 from typing import Any
 
 from ...errors import ValidationError
 from ...labelset import LabelSet
 from .base import ImageContext, Recognizer
 
-__all__ = ["RECOGNIZERS", "make_recognizer", "Recognizer", "ImageContext"]
+__all__ = ["RECOGNIZERS", "make_recognizer", "Recognizer", "RecognizerSpec", "ImageContext"]
 
 logger = logging.getLogger(__name__)
 
@@ -83,3 +86,71 @@ def make_recognizer(name: str, labelset: LabelSet, **options: Any) -> Recognizer
         recognizer = factory(labelset.names, **kwargs)
     logger.info("recogniser %s with %d classes", name, len(labelset))
     return recognizer
+
+
+@dataclass(frozen=True)
+class RecognizerSpec:
+    """How to make a recogniser: what travels to a Dask worker instead of the recogniser.
+
+    A worker makes it on its first task and keeps it for the next ones (:meth:`cached`), so a
+    model is loaded once per worker process.
+
+    Attributes
+    ----------
+    name : str
+        A key of :data:`RECOGNIZERS`.
+    labels : str or None
+        The capture's ``labels.toml`` (None: the default label set).
+    options : dict
+        The recogniser's keyword options.
+    """
+
+    name: str
+    labels: str | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.name not in RECOGNIZERS:
+            raise ValidationError(
+                f"recognizer: unknown name {self.name!r} (valid: {', '.join(sorted(RECOGNIZERS))})"
+            )
+
+    @property
+    def labelset(self) -> LabelSet:
+        """The label set (its names are the recogniser's classes)."""
+        return LabelSet.default() if self.labels is None else LabelSet.load(self.labels)
+
+    @property
+    def class_names(self) -> tuple[str, ...]:
+        """The recogniser's K classes."""
+        return tuple(self.labelset.names)
+
+    def make(self) -> Recognizer:
+        """A new recogniser.
+
+        Raises
+        ------
+        ValidationError
+            On an option the recogniser does not take, or a recogniser that cannot be imported.
+        """
+        try:
+            return make_recognizer(self.name, self.labelset, **self.options)
+        except TypeError as exc:  # an option the recogniser does not take
+            raise ValidationError(f"recognizer {self.name!r}: {exc}") from None
+
+    def cached(self) -> Recognizer:
+        """The recogniser, made once per process (:func:`pointtraj.executor.worker_cache`)."""
+        from ...executor import worker_cache
+
+        stamp = None
+        if self.labels is not None:
+            st = os.stat(self.labels)
+            stamp = (st.st_size, st.st_mtime_ns)
+        key = (
+            "recognizer",
+            self.name,
+            self.labels,
+            stamp,
+            json.dumps(self.options, sort_keys=True, default=str),
+        )
+        return worker_cache(key, self.make)

@@ -1,0 +1,130 @@
+"""The semantics stage serially and on a local Dask cluster, side by side, on paper69-like data.
+
+A synthetic capture with the paper's 69-camera rig (1280x1024, ``pipelines/paper69.toml``'s
+``[semantics]``: the simulated recogniser, view and average pooling) and its ground-truth
+trajectories; ``semantics_work`` runs once serially (in this process) and once on a
+``LocalCluster`` of ``--workers`` worker processes, one after the other in the same run. Reports
+wall and CPU seconds of each (the cluster's CPU is this process's plus its workers'), the wall
+ratio, the cluster's start-up apart, a second cluster run on the same (warm) workers, and checks that both semantic maps are identical, array by
+array. The load average is printed: other work on the machine inflates wall times.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_executor.py [--out /tmp/bench_executor] [--frames 6]
+        [--points-per-part 300] [--workers 2] [--capture EXISTING_PAPER69_CAPTURE]
+
+The capture is rendered into ``OUT/capture`` on the first run (a few minutes) and reused after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pointtraj.executor import ExecutorConfig, open_executor
+from pointtraj.pipeline import load_pipeline
+from pointtraj.stages import SynthConfig, ground_truth_work, semantics_work, synthesize
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cpu() -> float:
+    """User + system CPU seconds of the calling process (run on each worker)."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _workers_cpu(executor) -> float:
+    return float(sum(executor.client.run(_cpu).values()))
+
+
+def _same_npz(a: Path, b: Path) -> list[str]:
+    """The arrays that differ between two npz files (NaN equals NaN)."""
+    with np.load(a) as za, np.load(b) as zb:
+        if sorted(za.files) != sorted(zb.files):
+            return ["(different arrays)"]
+        return [
+            k
+            for k in za.files
+            if not np.array_equal(za[k], zb[k], equal_nan=za[k].dtype.kind in "fc")
+        ]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, default=Path("/tmp/bench_executor"))
+    ap.add_argument("--capture", type=Path, help="An existing paper69 synthetic capture.")
+    ap.add_argument("--frames", type=int, default=6)
+    ap.add_argument("--points-per-part", type=int, default=300)
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+
+    capture = args.capture
+    if capture is None:
+        capture = args.out / "capture"
+        t0 = time.perf_counter()
+        synth = SynthConfig(
+            preset="paper69",
+            scene="dribble",
+            frames=args.frames,
+            points_per_part=args.points_per_part,
+        )
+        summary = synthesize(capture, synth)
+        if summary.rendered:
+            print(f"rendered {summary.rendered} frames in {time.perf_counter() - t0:.0f} s")
+    semantics = load_pipeline(ROOT / "pipelines" / "paper69.toml").semantics
+    works = {}
+    for name in ("serial", "cluster"):
+        works[name] = args.out / f"work-{name}"
+        shutil.rmtree(works[name], ignore_errors=True)
+        ground_truth_work(works[name], capture)
+    traj = np.load(works["serial"] / "trajectories.npz")
+    print(
+        f"capture {capture}: 69 cameras, {int(traj['num_frames'])} frames, "
+        f"{len(traj['first_frame'])} trajectories, {len(traj['xyz'])} point-frames"
+    )
+    print(f"load average before: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    semantics_work(works["serial"], semantics, capture)
+    serial_wall, serial_cpu = time.perf_counter() - t0, time.process_time() - c0
+
+    t0 = time.perf_counter()
+    with open_executor(ExecutorConfig(workers=args.workers, dashboard=False)) as ex:
+        startup = time.perf_counter() - t0
+        runs = []
+        for _ in range(2):  # cold (each worker imports and makes its recogniser), then warm
+            w0 = _workers_cpu(ex)
+            t0, c0 = time.perf_counter(), time.process_time()
+            semantics_work(works["cluster"], semantics, capture, executor=ex)
+            wall = time.perf_counter() - t0
+            here = time.process_time() - c0
+            runs.append((wall, here + _workers_cpu(ex) - w0, here))
+    (cluster_wall, cluster_cpu, cold_here), (warm_wall, warm_cpu, warm_here) = runs
+    print(f"load average after:  {os.getloadavg()[0]:.2f}")
+
+    differ = _same_npz(works["serial"] / "semantic_map.npz", works["cluster"] / "semantic_map.npz")
+    print()
+    print(f"{'semantics':22s} {'wall s':>8s} {'CPU s':>8s} {'of it here':>10s}")
+    print(f"{'serial':22s} {serial_wall:8.1f} {serial_cpu:8.1f} {serial_cpu:10.1f}")
+    print(
+        f"{f'{args.workers}-worker local cluster':22s} {cluster_wall:8.1f} {cluster_cpu:8.1f} "
+        f"{cold_here:10.1f}"
+    )
+    print(f"{'  again (warm workers)':22s} {warm_wall:8.1f} {warm_cpu:8.1f} {warm_here:10.1f}")
+    print(f"{'(cluster start-up)':22s} {startup:8.1f}")
+    print()
+    print(f"wall ratio serial / cluster: {serial_wall / cluster_wall:.2f}x")
+    print(f"with the start-up:           {serial_wall / (cluster_wall + startup):.2f}x")
+    print(f"warm workers:                {serial_wall / warm_wall:.2f}x")
+    print("outputs: " + ("identical" if not differ else f"DIFFER in {', '.join(differ)}"))
+
+
+if __name__ == "__main__":
+    main()
