@@ -24,6 +24,7 @@ import re
 import struct
 import tempfile
 import threading
+import zipfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -347,21 +348,36 @@ def _free_bytes(folder: Path) -> int | None:
     return st.f_bavail * st.f_frsize
 
 
-def save_npz_atomic(path: str | os.PathLike, compress: bool = False, **arrays: np.ndarray) -> None:
+def save_npz_atomic(
+    path: str | os.PathLike, compress: bool | int = False, **arrays: np.ndarray
+) -> None:
     """Write arrays to an ``.npz`` file atomically.
 
     Parameters
     ----------
     path : path-like
         Destination ``.npz`` file.
-    compress : bool
-        Use ``numpy.savez_compressed``.
+    compress : bool or int
+        False: stored (``numpy.savez``); True: deflated at zlib's default level
+        (``numpy.savez_compressed``); an int 1-9: deflated at that level (1 is about 3 times
+        faster than the default and nearly as small on float data). Any form reads back with
+        ``numpy.load``.
     **arrays : numpy.ndarray
         The arrays, by name.
     """
+    if compress is not True and compress is not False and not 1 <= int(compress) <= 9:
+        raise ValueError(f"compress: False, True or a zlib level 1-9, got {compress!r}")
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
-            (np.savez_compressed if compress else np.savez)(f, **arrays)
+            if compress is True or compress is False:
+                (np.savez_compressed if compress else np.savez)(f, **arrays)
+                return
+            with zipfile.ZipFile(
+                f, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=int(compress)
+            ) as zf:
+                for name, array in arrays.items():
+                    with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
+                        np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:

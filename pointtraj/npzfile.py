@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import zipfile
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -25,7 +26,7 @@ def _reason(exc: BaseException) -> str:
         return "permission denied"
     if isinstance(exc, OSError) and exc.strerror:
         return exc.strerror.lower()
-    if isinstance(exc, zipfile.BadZipFile | EOFError):
+    if isinstance(exc, zipfile.BadZipFile | EOFError | zlib.error):
         return "truncated or corrupt (not a complete .npz archive)"
     return str(exc) or type(exc).__name__
 
@@ -36,8 +37,9 @@ def load_npz(
     what: str = "an .npz file",
     *,
     hint: str = "",
+    keys: Sequence[str] | None = None,
 ) -> dict[str, np.ndarray]:
-    """Read every array of an ``.npz`` file into memory.
+    """Read the arrays of an ``.npz`` file into memory (every one, or only ``keys``).
 
     Parameters
     ----------
@@ -49,11 +51,14 @@ def load_npz(
         What the file should be, for the messages (e.g. ``"a semantic map"``).
     hint : str, optional
         Appended to the message of a missing file, e.g. ``"run `pointtraj label` first"``.
+    keys : sequence of str, optional
+        Read only these arrays (those present; the others are neither read nor decompressed).
+        ``required`` is checked against the file's arrays either way.
 
     Returns
     -------
     dict of str to numpy.ndarray
-        Every array of the file, by name.
+        The arrays read, by name.
 
     Raises
     ------
@@ -71,10 +76,12 @@ def load_npz(
             if not isinstance(z, np.lib.npyio.NpzFile):
                 raise ValueError("a single .npy array, not an .npz archive")
             with z:
-                data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                names = list(z.files)
+                wanted = names if keys is None else [k for k in names if k in set(keys)]
+                data = {k: z[k] for k in wanted}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
         raise FileFormatError(path, f"not a readable .npz file: {_reason(exc)}") from None
-    missing = [k for k in required if k not in data]
+    missing = [k for k in required if k not in names]
     if missing:
         raise FileFormatError(
             path,

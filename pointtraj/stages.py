@@ -304,7 +304,10 @@ def reconstruct_work(
             wanted = {"reconstruct_run": None, "reconstruct": None} | wf.run_document(
                 capture, rng, cfg
             )
-            if wf.run_identity() != wanted:
+            have = wf.run_identity()
+            if isinstance(have.get("reconstruct"), dict):  # work.toml of an older version:
+                have["reconstruct"].setdefault("cloud_visibility", "full")  # its clouds' form
+            if have != wanted:
                 if on_change == "refuse":
                     raise ValidationError(
                         f"{wf.path} holds a reconstruction of another capture, frame range or "
@@ -583,8 +586,10 @@ def _label_locked(
         frames = sorted(int(p.stem) for p in wf.clouds.glob("*.ply") if p.stem.isdigit())
         frames = [t for t in frames if t < trajectories.num_frames]
         write_text_atomic(wf.labels_pending, f"{len(frames)} clouds being relabelled\n")
+        # the clouds keep the visibility form the reconstruction wrote them in
+        form = (wf.run_identity().get("reconstruct") or {}).get("cloud_visibility", "full")
         for i, t in enumerate(frames):
-            trajectories.write_frame_ply(t, wf.cloud(t), labels=result.labels)
+            trajectories.write_frame_ply(t, wf.cloud(t), visibility_form=form, labels=result.labels)
             _report(progress, "label: clouds", i + 1, len(frames))
     save_labels(result, wf.labels, trajectories.first_frame, trajectories.lengths)
     wf.labels_pending.unlink(missing_ok=True)

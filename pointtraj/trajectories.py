@@ -27,7 +27,13 @@ from .errors import FileFormatError, ValidationError, check_array
 if TYPE_CHECKING:  # pragma: no cover
     import open3d as o3d
 
-__all__ = ["Trajectories", "FrameSlice", "quantize_visibility", "dequantize_visibility"]
+__all__ = [
+    "Trajectories",
+    "FrameSlice",
+    "quantize_visibility",
+    "dequantize_visibility",
+    "CLOUD_VISIBILITY",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -66,12 +72,30 @@ def view_counts(visibility: np.ndarray) -> np.ndarray:
     return np.count_nonzero(np.asarray(visibility) >= OBSERVED_MIN, axis=1).astype(np.uint8)
 
 
+#: The forms a cloud's visibility can take in ``clouds/<t>.ply`` (``data_specs/work_folder.md``):
+#: ``"full"``, C float32 columns (the default, for Open3D users); ``"uint8"``, C uint8 columns
+#: holding the store's quantised values (exact, a quarter of the size; PLY and Open3D have no
+#: float16); ``"sparse"``, only the observed views (visibility at least :data:`OBSERVED_MIN`),
+#: as a second PLY element ``view`` (``camera``, ``visibility`` uint8) in vertex order,
+#: ``num_views`` of them per vertex; Open3D reads the vertices and skips that element.
+CLOUD_VISIBILITY = ("full", "uint8", "sparse")
+
+
+def check_choice(name: str, form: str) -> None:
+    """Refuse a cloud visibility form that is not one of :data:`CLOUD_VISIBILITY`."""
+    if form not in CLOUD_VISIBILITY:
+        raise ValidationError(
+            f"{name} must be one of {', '.join(repr(f) for f in CLOUD_VISIBILITY)}, got {form!r}"
+        )
+
+
 def frame_pointcloud(
     xyz: np.ndarray,
     color: np.ndarray,
     visibility: np.ndarray,
     track_id: np.ndarray,
     label: np.ndarray | None = None,
+    visibility_form: str = "full",
 ) -> o3d.t.geometry.PointCloud:
     """One frame's points as an Open3D point cloud with pointtraj's attributes.
 
@@ -83,20 +107,30 @@ def frame_pointcloud(
         Quantised visibility (:func:`quantize_visibility`).
     track_id : (N,) int ndarray
     label : (N,) int ndarray, optional
+    visibility_form : {"full", "uint8", "sparse"}
+        How ``visibility`` is kept (:data:`CLOUD_VISIBILITY`): (N, C) float32 probabilities
+        (the default, for Open3D users), (N, C) uint8 as the store quantises it, or not at all
+        (:func:`write_cloud_ply` then writes the observed views, given ``views``).
 
     Returns
     -------
     open3d.t.geometry.PointCloud
         ``positions`` (N, 3) float32, ``colors`` (N, 3) float32 in [0, 1], ``visibility``
-        (N, C) float32, ``num_views`` (N, 1) uint8 (:func:`view_counts`), ``verified`` (N, 1)
-        uint8 (1 where ``num_views >= 3``), ``track_id`` (N, 1) int64 and ``label`` (N, 1)
-        int32.
+        (N, C) float32 or uint8 (none in the sparse form), ``num_views`` (N, 1) uint8
+        (:func:`view_counts`), ``verified`` (N, 1) uint8 (1 where ``num_views >= 3``),
+        ``track_id`` (N, 1) int64 and ``label`` (N, 1) int32.
     """
     import open3d as o3d
 
+    check_choice("visibility_form", visibility_form)
     pcd = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(xyz, np.float32)))
     pcd.point.colors = o3d.core.Tensor(np.asarray(color, np.float32) / 255.0)
-    pcd.point.visibility = o3d.core.Tensor(np.ascontiguousarray(dequantize_visibility(visibility)))
+    if visibility_form == "full":
+        pcd.point.visibility = o3d.core.Tensor(
+            np.ascontiguousarray(dequantize_visibility(visibility))
+        )
+    elif visibility_form == "uint8":
+        pcd.point.visibility = o3d.core.Tensor(np.ascontiguousarray(visibility, np.uint8))
     views = view_counts(visibility)
     pcd.point.num_views = o3d.core.Tensor(views[:, None])
     pcd.point.verified = o3d.core.Tensor((views >= 3).astype(np.uint8)[:, None])
@@ -117,7 +151,9 @@ def load_cloud(path: str | os.PathLike) -> dict[str, np.ndarray]:
     -------
     dict
         ``xyz`` (N, 3) float32, ``color`` (N, 3) uint8, ``visibility`` (N, C) float32 (the
-        PLY's ``visibility_0 .. visibility_{C-1}`` restacked), ``track_id`` (N,) int64, and,
+        PLY's ``visibility_0 .. visibility_{C-1}`` restacked, dequantised where they are
+        uint8; in the sparse form the observed views, 0 elsewhere: every form of
+        :data:`CLOUD_VISIBILITY`), ``track_id`` (N,) int64, and,
         where present, ``num_views`` (N,) uint8, ``verified`` (N,) bool and ``label`` (N,) int32.
 
     Raises
@@ -141,14 +177,24 @@ def load_cloud(path: str | os.PathLike) -> dict[str, np.ndarray]:
     cols = sorted(
         (k for k in attrs if re.fullmatch(r"visibility_\d+", k)), key=lambda k: int(k[11:])
     )
+    if cols:
+        stacked = np.hstack([attrs[k] for k in cols])
+        vis = (
+            dequantize_visibility(stacked)
+            if stacked.dtype == np.uint8
+            else stacked.astype(np.float32)
+        )
+    else:
+        nv = attrs["num_views"].reshape(-1) if "num_views" in attrs else None
+        vis = _sparse_visibility(path, nv)
+        if vis is None:
+            vis = np.zeros((n, 0), np.float32)
     out = {
         "xyz": attrs["positions"].astype(np.float32),
         "color": np.clip(np.rint(attrs.get("colors", np.zeros((n, 3))) * 255), 0, 255).astype(
             np.uint8
         ),
-        "visibility": np.hstack([attrs[k] for k in cols]).astype(np.float32)
-        if cols
-        else np.zeros((n, 0), np.float32),
+        "visibility": vis,
         "track_id": attrs["track_id"].reshape(-1).astype(np.int64),
     }
     if "num_views" in attrs:
@@ -180,7 +226,9 @@ def _empty_ply_header(pcd: o3d.t.geometry.PointCloud) -> str:
     return "\n".join([*lines, "end_header"]) + "\n"
 
 
-def write_cloud_ply(path: str | os.PathLike, pcd: o3d.t.geometry.PointCloud) -> None:
+def write_cloud_ply(
+    path: str | os.PathLike, pcd: o3d.t.geometry.PointCloud, views: np.ndarray | None = None
+) -> None:
     """Write a point cloud as PLY, atomically; a cloud without points too (Open3D refuses it).
 
     Parameters
@@ -189,6 +237,10 @@ def write_cloud_ply(path: str | os.PathLike, pcd: o3d.t.geometry.PointCloud) -> 
     pcd : open3d.t.geometry.PointCloud
         Its attributes become PLY properties (``visibility`` (N, C) as ``visibility_0`` ...).
         PLY has no 64-bit integers: Int64 attributes (``track_id``) are written as int32.
+    views : (N, C) uint8 ndarray, optional
+        Quantised visibility to write sparse (:data:`CLOUD_VISIBILITY`): the observed views
+        follow the vertices as the element ``view``, and the header says
+        ``comment pointtraj visibility sparse C``.
 
     Raises
     ------
@@ -205,6 +257,74 @@ def write_cloud_ply(path: str | os.PathLike, pcd: o3d.t.geometry.PointCloud) -> 
             tmp.write_text(_empty_ply_header(pcd), encoding="ascii")
         elif not o3d.t.io.write_point_cloud(str(tmp), pcd):
             raise FileFormatError(path, "Open3D failed to write the point cloud")
+        if views is not None:
+            _append_views(tmp, views)
+
+
+def _append_views(path: Path, views: np.ndarray) -> None:
+    """Add the observed views of ``views`` (N, C) uint8 to a binary PLY as the element ``view``."""
+    q = np.asarray(views, np.uint8)
+    C = q.shape[1]
+    rows, cams = np.nonzero(q >= OBSERVED_MIN)  # vertex order, cameras ascending
+    kind, dtype = ("uchar", np.uint8) if C <= 256 else ("ushort", np.dtype("<u2"))
+    table = np.empty(len(rows), dtype=[("camera", dtype), ("visibility", np.uint8)])
+    table["camera"] = cams
+    table["visibility"] = q[rows, cams]
+    data = path.read_bytes()
+    end = data.index(b"end_header\n")
+    extra = (
+        f"comment pointtraj visibility sparse {C}\nelement view {len(rows)}\n"
+        f"property {kind} camera\nproperty uchar visibility\n"
+    )
+    path.write_bytes(data[:end] + extra.encode("ascii") + data[end:] + table.tobytes())
+
+
+def _sparse_visibility(path: Path, num_views: np.ndarray | None) -> np.ndarray | None:
+    """The (N, C) float32 visibility of a cloud written sparse, or None for another form.
+
+    Raises
+    ------
+    FileFormatError
+        If the ``view`` element disagrees with the vertices' ``num_views``.
+    """
+    from .atomic import _PLY_SIZES
+
+    with open(path, "rb") as f:
+        head = f.read(65536)
+    end = head.find(b"end_header\n")
+    lines = head[:end].decode("ascii", "replace").splitlines()
+    sparse = [ln.split() for ln in lines if ln.startswith("comment pointtraj visibility sparse")]
+    if not sparse:
+        return None
+    C = int(sparse[0][4])
+    elements: list[list] = []  # [name, count, [(type, name), ...]]
+    for line in lines:
+        words = line.split()
+        if words[:1] == ["element"]:
+            elements.append([words[1], int(words[2]), []])
+        elif words[:1] == ["property"] and elements:
+            elements[-1][2].append((words[1], words[2]))
+    offset = end + len(b"end_header\n")
+    for name, count, props in elements:
+        if name == "view":
+            break
+        offset += count * sum(_PLY_SIZES[t] for t, _ in props)
+    else:
+        raise FileFormatError(path, "a sparse-visibility cloud without its 'view' element")
+    _, count, props = elements[[e[0] for e in elements].index("view")]
+    np_types = {"uchar": np.uint8, "ushort": np.dtype("<u2")}
+    table = np.fromfile(
+        path, dtype=[(n, np_types[t]) for t, n in props], count=count, offset=offset
+    )
+    N = 0 if num_views is None else len(num_views)
+    if num_views is None or len(table) != count or int(num_views.sum()) != count:
+        raise FileFormatError(
+            path, f"its {count} views do not match the vertices' num_views (or it has none)"
+        )
+    vis = np.zeros((N, C), np.float32)
+    rows = np.repeat(np.arange(N), num_views.astype(np.int64))
+    vis[rows, table["camera"].astype(np.int64)] = dequantize_visibility(table["visibility"])
+    return vis
 
 
 def _check_finite_xyz(path: Path, xyz: np.ndarray) -> None:
@@ -574,7 +694,11 @@ class Trajectories:
 
     # -- Open3D views ------------------------------------------------------------------------
     def to_pointcloud(
-        self, t: int, labels: np.ndarray | None = None, colors: np.ndarray | None = None
+        self,
+        t: int,
+        labels: np.ndarray | None = None,
+        colors: np.ndarray | None = None,
+        visibility_form: str = "full",
     ) -> o3d.t.geometry.PointCloud:
         """Frame ``t`` as an ``open3d.t.geometry.PointCloud``.
 
@@ -588,6 +712,8 @@ class Trajectories:
             A label per trajectory.
         colors : (M, 3) uint8 ndarray, optional
             A colour per trajectory, overriding the per-point colours (e.g. label colours).
+        visibility_form : {"full", "uint8", "sparse"}
+            See :func:`frame_pointcloud`.
         """
         fs = self.frame(t)
         col = self.color[fs.rows] if colors is None else np.asarray(colors, np.uint8)[fs.track_id]
@@ -599,11 +725,20 @@ class Trajectories:
                     f"labels: expected shape ({self.num_trajectories},), got {lab.shape}"
                 )
             lab = lab[fs.track_id]
-        return frame_pointcloud(fs.xyz, col, self.visibility[fs.rows], fs.track_id, lab)
+        return frame_pointcloud(
+            fs.xyz, col, self.visibility[fs.rows], fs.track_id, lab, visibility_form
+        )
 
-    def write_frame_ply(self, t: int, path: str | os.PathLike, **kwargs) -> None:
-        """Write frame ``t`` as a PLY with its attributes, atomically (see :meth:`to_pointcloud`)."""
-        write_cloud_ply(path, self.to_pointcloud(t, **kwargs))
+    def write_frame_ply(
+        self, t: int, path: str | os.PathLike, visibility_form: str = "full", **kwargs
+    ) -> None:
+        """Write frame ``t`` as a PLY with its attributes, atomically (see :meth:`to_pointcloud`).
+
+        ``visibility_form`` is one of :data:`CLOUD_VISIBILITY` (default ``"full"``).
+        """
+        pcd = self.to_pointcloud(t, visibility_form=visibility_form, **kwargs)
+        views = self.visibility[self.frame_rows(t)] if visibility_form == "sparse" else None
+        write_cloud_ply(path, pcd, views)
 
     # -- files -------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:

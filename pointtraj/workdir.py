@@ -38,7 +38,7 @@ _OWN_DIR = ".pointtraj"
 #: Files that pointtraj writes in a work folder of an older version without a manifest, by
 #: subfolder: only these may be removed there (``--force-folder`` too).
 OWN_NAMES = {
-    "state": re.compile(r"^\d{6}\.npz$"),
+    "state": re.compile(r"^(\d{6}|live)\.npz$"),
     "clouds": re.compile(r"^\d{6}\.ply$"),
 }
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -109,20 +110,36 @@ def test_rerun_skips_and_parameter_change_reruns_dependants(tiny_run, tmp_path):
 
 
 def test_interrupted_reconstruction_resumes(tmp_path):
+    from pointtraj.stages import reconstruct_work
+
     config = load_pipeline(_write(tmp_path, TINY), base=tmp_path)
     config = dataclasses.replace(config, stages=("capture", "trajectories"))
     run_pipeline(config)
     work = config.work
+    reference = Trajectories.load(work / "trajectories.npz")
+    shutil.rmtree(work)
+
+    class Crash(Exception):
+        pass
+
+    def crash_after_frame_1(label: str, done: int, total: int) -> None:
+        if label == "reconstruct" and done == 2:
+            raise Crash
+
+    with pytest.raises(Crash):  # a run killed after frame 1
+        reconstruct_work(
+            work, config.capture, config.reconstruct, config.frames, progress=crash_after_frame_1
+        )
+    assert not (work / "trajectories.npz").exists()
     first_cloud = (work / "clouds" / "000000.ply").stat().st_mtime_ns
-    # A crash after frame 1: the last state and the store are gone, the pipeline record too.
-    (work / "state" / "000002.npz").unlink()
-    (work / "trajectories.npz").unlink()
-    (work / "pipeline.json").unlink()
     res = run_pipeline(config)
     assert "trajectories" in res.ran
     assert (work / "clouds" / "000000.ply").stat().st_mtime_ns == first_cloud  # not redone
     assert (work / "state" / "000002.npz").is_file()
-    assert Trajectories.load(work / "trajectories.npz").num_frames == 3
+    resumed = Trajectories.load(work / "trajectories.npz")
+    assert resumed.num_frames == 3
+    np.testing.assert_array_equal(resumed.offsets, reference.offsets)
+    np.testing.assert_array_equal(resumed.xyz, reference.xyz)
 
 
 def test_bad_pipeline_files_name_the_problem(tmp_path):

@@ -185,6 +185,58 @@ def test_load_cloud_round_trips_the_view_counts(store, tmp_path):
         load_cloud(path)
 
 
+@pytest.mark.parametrize("form", ["full", "uint8", "sparse"])
+def test_every_cloud_visibility_form_round_trips(store, tmp_path, form):
+    """Each visibility form reads back through load_cloud; Open3D reads every form's vertices.
+
+    ``uint8`` is exact against the store; ``sparse`` keeps the observed views (>= 13/255)
+    exactly and reads 0 elsewhere.
+    """
+    import open3d as o3d
+
+    from pointtraj.trajectories import OBSERVED_MIN, load_cloud
+
+    tr = store[0]
+    sizes = {}
+    for t in range(tr.num_frames):
+        path = tmp_path / f"{t:06d}.ply"
+        tr.write_frame_ply(t, path, visibility_form=form)
+        cloud = load_cloud(path)
+        fs = tr.frame(t)
+        q = tr.visibility[fs.rows]
+        want = fs.visibility if form != "sparse" else np.where(q >= OBSERVED_MIN, fs.visibility, 0)
+        assert cloud["visibility"].dtype == np.float32
+        assert cloud["visibility"].shape == (len(fs.rows), 3)
+        np.testing.assert_array_equal(cloud["visibility"], want)
+        np.testing.assert_array_equal(cloud["track_id"], fs.track_id)
+        np.testing.assert_array_equal(cloud["xyz"], fs.xyz)
+        pcd = o3d.t.io.read_point_cloud(str(path))
+        np.testing.assert_array_equal(pcd.point.positions.numpy(), fs.xyz)
+        sizes[t] = path.stat().st_size
+    if form == "sparse":  # some views were below the threshold and are gone
+        assert (tr.visibility < OBSERVED_MIN).any()
+    empty = Trajectories.empty(["a", "b", "c"], num_frames=1)
+    empty.write_frame_ply(0, tmp_path / "empty.ply", visibility_form=form)
+    assert load_cloud(tmp_path / "empty.ply")["visibility"].shape[0] == 0
+    with pytest.raises(ValidationError, match="visibility_form must be one of"):
+        tr.write_frame_ply(0, tmp_path / "x.ply", visibility_form="float16")
+
+
+def test_a_sparse_cloud_whose_views_disagree_is_refused(store, tmp_path):
+    from pointtraj.trajectories import load_cloud
+
+    tr = store[0]
+    path = tmp_path / "s.ply"
+    tr.write_frame_ply(6, path, visibility_form="sparse")
+    data = path.read_bytes()
+    head = data[: data.index(b"end_header")]
+    count = int(head.split(b"element view ")[1].split(b"\n")[0])
+    bad = data.replace(f"element view {count}".encode(), f"element view {count - 1}".encode())
+    path.write_bytes(bad[:-2])
+    with pytest.raises(FileFormatError, match="views do not match the vertices' num_views"):
+        load_cloud(path)
+
+
 def test_pointcloud_in_memory(store):
     tr = store[0]
     pcd = tr.to_pointcloud(3)

@@ -140,6 +140,13 @@ class ReconstructConfig:
         A point that drops to one view goes on for a few frames, carried by its neighbours'
         rigid motion where its remaining view agrees (table ``[reconstruct.survive]``;
         :mod:`pointtraj.reconstruct.survive`).
+    cloud_visibility : {"full", "uint8", "sparse"}
+        How ``clouds/<t>.ply`` hold the points' visibility
+        (:data:`pointtraj.trajectories.CLOUD_VISIBILITY`): C float32 columns (the default, what
+        Open3D users read), C uint8 columns (the store's quantised values: a third of the
+        file on paper69), or only the observed views as a second PLY element (a fifth).
+        ``load_cloud`` reads every form back to (N, C) float32. It does not change the
+        trajectories; as one of the run's parameters, changing it restarts a run.
     """
 
     sigma_px: float = 1.0
@@ -174,6 +181,7 @@ class ReconstructConfig:
     views: ViewsConfig = field(default_factory=ViewsConfig)
     stitch: StitchConfig = field(default_factory=StitchConfig)
     survive: SurviveConfig = field(default_factory=SurviveConfig)
+    cloud_visibility: Literal["full", "uint8", "sparse"] = "full"
 
     def __post_init__(self) -> None:
         checks = {
@@ -212,6 +220,11 @@ class ReconstructConfig:
             raise ValidationError(
                 f"ReconstructConfig.lk_start must be 'projection' or 'observation', "
                 f"got {self.lk_start!r}"
+            )
+        if self.cloud_visibility not in ("full", "uint8", "sparse"):
+            raise ValidationError(
+                "ReconstructConfig.cloud_visibility must be 'full', 'uint8' or 'sparse', "
+                f"got {self.cloud_visibility!r}"
             )
         if not isinstance(self.matching, MatchingConfig):
             raise ValidationError("ReconstructConfig.matching must be a MatchingConfig")

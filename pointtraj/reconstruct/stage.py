@@ -2,8 +2,10 @@
 
 :func:`reconstruct_capture` streams a capture frame by frame through the :class:`~.track.Tracker`
 into a work folder, writing each frame's point cloud and tracker state atomically so that an
-interrupted run resumes from the last complete frame, and assembles the ragged
-:class:`~pointtraj.trajectories.Trajectories` store (:func:`assemble_trajectories`). A long
+interrupted run resumes from the last complete frame (the files: :mod:`.framestore`), and
+assembles the ragged :class:`~pointtraj.trajectories.Trajectories` store from the per-frame
+record files (:meth:`.framestore.FrameStore.assemble`; :func:`assemble_trajectories` does the
+same from records in memory). A long
 frame range is tracked in temporal chunks, one executor task each (:func:`reconstruct_chunk`),
 joined across their boundaries (:mod:`~.chunks`).
 """
@@ -21,14 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from ..atomic import TEMP_PREFIX, record_installed, save_npz_atomic
+from ..atomic import TEMP_PREFIX, record_installed
 from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError
 from ..executor import Executor, SerialExecutor
-from ..npzfile import load_npz
 from ..trajectories import Trajectories, frame_pointcloud, write_cloud_ply
 from .chunks import Bridge, Chunk, merge_chunks, plan_chunks
 from .config import ReconstructConfig
+from .framestore import FrameStore
 from .stitch import stitch_trajectories
 from .survive import trim_one_view_tails
 from .track import FrameRecord, Tracker, TrackState
@@ -42,9 +44,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-STATE_FORMAT_VERSION = 1
-
 
 # -- assembling the store ---------------------------------------------------------------------
 
@@ -98,80 +97,9 @@ def assemble_trajectories(
 # -- work folder streaming --------------------------------------------------------------------
 
 
-def _state_path(folder: Path, t: int) -> Path:
-    return folder / "state" / f"{t:06d}.npz"
-
-
-def _save_state(path: Path, record: FrameRecord, state: TrackState) -> None:
-    save_npz_atomic(
-        path,
-        format_version=np.int64(STATE_FORMAT_VERSION),
-        frame=np.int64(record.frame),
-        rec_ids=record.ids,
-        rec_xyz=record.xyz,
-        rec_visibility=record.visibility,
-        rec_error=record.error,
-        rec_color=record.color,
-        rec_num_new=np.int64(record.num_new),
-        live_ids=state.ids,
-        live_xyz=state.xyz,
-        live_visibility=state.visibility,
-        live_pixels=state.pixels,
-        live_lone=state.lone,
-        next_id=np.int64(state.next_id),
-    )
-
-
-_STATE_KEYS = (
-    "frame",
-    "rec_ids",
-    "rec_xyz",
-    "rec_visibility",
-    "rec_error",
-    "rec_color",
-    "rec_num_new",
-    "live_ids",
-    "live_xyz",
-    "live_visibility",
-    "live_pixels",
-    "next_id",
-)
-
-
-def _load_state(path: Path, num_cameras: int) -> tuple[FrameRecord, TrackState]:
-    d = load_npz(path, _STATE_KEYS, "a tracker state")
-    try:
-        t = int(d["frame"])
-        rec = FrameRecord(
-            t,
-            d["rec_ids"],
-            d["rec_xyz"],
-            d["rec_visibility"],
-            d["rec_error"],
-            d["rec_color"],
-            int(d["rec_num_new"]),
-        )
-        st = TrackState(
-            t,
-            d["live_ids"],
-            d["live_xyz"],
-            d["live_visibility"],
-            d["live_pixels"],
-            int(d["next_id"]),
-            d.get("live_lone"),  # absent in the states of older versions
-        )
-    except (ValueError, TypeError) as exc:
-        raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
-    if st.visibility.shape[1:] != (num_cameras,) or rec.visibility.shape[1:] != (num_cameras,):
-        raise FileFormatError(path, f"tracker state is not for {num_cameras} cameras")
-    if st.lone.shape != st.ids.shape:
-        raise FileFormatError(
-            path, f"tracker state: live_lone has {st.lone.shape}, expected {st.ids.shape}"
-        )
-    return rec, st
-
-
-def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
+def write_frame_cloud(
+    path: str | os.PathLike, record: FrameRecord, visibility_form: str = "full"
+) -> None:
     """Write one frame's points as a PLY (:func:`~pointtraj.trajectories.frame_pointcloud`'s
     attributes, ``track_id`` as int32).
 
@@ -179,8 +107,13 @@ def write_frame_cloud(path: str | os.PathLike, record: FrameRecord) -> None:
     ----------
     path : path-like
     record : FrameRecord
+    visibility_form : {"full", "uint8", "sparse"}
+        :data:`~pointtraj.trajectories.CLOUD_VISIBILITY`.
     """
-    write_cloud_ply(path, frame_pointcloud(record.xyz, record.color, record.visibility, record.ids))
+    pcd = frame_pointcloud(
+        record.xyz, record.color, record.visibility, record.ids, None, visibility_form
+    )
+    write_cloud_ply(path, pcd, record.visibility if visibility_form == "sparse" else None)
 
 
 @dataclass(frozen=True)
@@ -271,26 +204,21 @@ def reconstruct_chunk(task: ChunkTask) -> ChunkResult:
     frames = range(task.start, task.stop)
     tracked, stops = 0, {}
     if not out.is_file():
-        records, tracker, resumed = _track_frames(capture, folder, frames, task.config)
-        traj = assemble_trajectories(
-            records, list(capture.rig.names), float(capture.fps), int(capture.num_frames)
-        )
-        del records
+        traj, tracker, resumed = _track_frames(capture, folder, frames, task.config)
         traj.save(out)
         tracked, stops = len(frames) - resumed, dict(tracker.stops)
     if tail is not None:
-        last = _state_path(folder, task.stop - 1)
-        _carry_on(capture, last, task.tail_stop, task.config).save(tail)
+        state = FrameStore(folder, len(capture.rig)).read_state_at(task.stop - 1)
+        _carry_on(capture, state, task.tail_stop, task.config).save(tail)
     return ChunkResult(str(out), tail and str(tail), tracked, stops, time.process_time() - cpu0)
 
 
-def _carry_on(capture, state_file: Path, stop: int, cfg: ReconstructConfig) -> Bridge:
+def _carry_on(capture, state: TrackState, stop: int, cfg: ReconstructConfig) -> Bridge:
     """Track the live trajectories of a state on to ``stop``, without new points (no matching,
     no densification), until they end: a chunk's tail (:class:`~.chunks.Bridge`, no joins).
     """
     rig = capture.rig
     names = list(rig.names)
-    _, state = _load_state(state_file, len(rig))
     carry_cfg = dataclasses.replace(
         cfg,
         match_every=2**62,  # never at the frames stepped here: no new points
@@ -334,39 +262,37 @@ def _track_frames(
     *,
     write_clouds: bool = False,
     on_frame: Callable[[FrameRecord | None], None] | None = None,
-) -> tuple[list[FrameRecord], Tracker, int]:
+) -> tuple[Trajectories, Tracker, int]:
     """Track frames with one tracker into ``folder/state/`` (and ``folder/clouds/``), resuming.
+
+    Each frame's record goes to ``state/<t>.npz`` and the tracker's state replaces
+    ``state/live.npz`` (:class:`~.framestore.FrameStore`); no record stays in memory, and the
+    store is assembled from the record files at the end.
 
     Returns
     -------
-    records : list of FrameRecord
-        Every frame's record, resumed ones included.
+    store : Trajectories
+        The frames' store (before stitching), resumed frames included.
     tracker : Tracker
         Its ``stops`` count the trajectories ended in the frames tracked now.
     resumed : int
-        Frames read back from their state files.
+        Frames complete before this call.
     """
     rig = capture.rig
     names = list(rig.names)
-    records: list[FrameRecord] = []
-    state = None
-    for t in frames:  # resume: contiguous complete frames
-        path = _state_path(folder, t)
-        if not path.is_file():
-            break
-        rec, state = _load_state(path, len(rig))
-        records.append(rec)
-        if on_frame is not None:
-            on_frame(rec)
-    resumed = len(records)
-    if records:
+    store = FrameStore(folder, len(rig))
+    resumed, state = store.resume(frames)
+    if on_frame is not None:
+        for t in frames[:resumed]:
+            on_frame(store.read_record(t))
+    if resumed:
         logger.info(
-            "%s: resuming after frame %d (%d frames done)", folder, records[-1].frame, resumed
+            "%s: resuming after frame %d (%d frames done)", folder, frames[resumed - 1], resumed
         )
     tracker = Tracker(rig, cfg, state=state, first_frame=frames.start)
-    if state is not None and len(records) < len(frames):
+    if state is not None and resumed < len(frames):
         tracker.set_previous_images([capture.read(n, state.frame) for n in names])
-    for t in frames[len(records) :]:
+    for t in frames[resumed:]:
         images = [capture.read(n, t) for n in names]
         rec = tracker.step(t, images)
         if len(rec.ids) == 0:
@@ -376,12 +302,12 @@ def _track_frames(
                 t,
             )
         if write_clouds:
-            write_frame_cloud(folder / "clouds" / f"{t:06d}.ply", rec)
-        _save_state(_state_path(folder, t), rec, tracker.state)
-        records.append(rec)
+            write_frame_cloud(folder / "clouds" / f"{t:06d}.ply", rec, cfg.cloud_visibility)
+        store.save_frame(rec, tracker.state)
         if on_frame is not None:
             on_frame(rec)
-    return records, tracker, resumed
+    traj = store.assemble(frames, names, float(capture.fps), int(capture.num_frames))
+    return traj, tracker, resumed
 
 
 def _log_stops(stops: dict[str, int]) -> None:
@@ -406,9 +332,11 @@ def reconstruct_capture(
     """Reconstruct trajectories of a capture into a work folder, resuming where it stopped.
 
     A frame range of at most ``config.chunk_frames`` frames is one chunk: it writes
-    ``clouds/<t:06d>.ply`` and ``state/<t:06d>.npz`` per frame (the state file last, so that it
-    marks the frame complete), then ``trajectories.npz``; frames whose state file exists
-    (contiguously from ``frames.start``) are not recomputed.
+    ``clouds/<t:06d>.ply`` and the frame's record ``state/<t:06d>.npz`` per frame, then replaces
+    ``state/live.npz`` (the tracker's state, which marks the frame complete;
+    :class:`~.framestore.FrameStore`), and at the end ``trajectories.npz``, assembled from the
+    record files; frames up to the live state's (with records contiguously from
+    ``frames.start``) are not recomputed. No record stays in memory between frames.
 
     A longer range is tracked in temporal chunks (:func:`~.chunks.plan_chunks`), one executor
     task each (:func:`reconstruct_chunk`), into ``chunks/<start>-<stop>/`` (``state/`` per
@@ -460,12 +388,10 @@ def reconstruct_capture(
         )
     chunks = plan_chunks(frames, cfg.chunk_frames, cfg.chunk_overlap)
     if len(chunks) == 1:
-        records, tracker, _ = _track_frames(
+        traj, tracker, _ = _track_frames(
             capture, work, frames, cfg, write_clouds=True, on_frame=on_frame
         )
         _log_stops(tracker.stops)
-        traj = assemble_trajectories(records, names, float(capture.fps), T)
-        del records
     else:
         traj = _reconstruct_chunks(capture, work, chunks, cfg, executor, on_frame)
     stitched, new_id = stitch_trajectories(traj, cfg.stitch)
@@ -475,13 +401,14 @@ def reconstruct_capture(
             "%d one-view point-frames at trajectories' ends dropped (no second view returned)",
             dropped,
         )
+    form = cfg.cloud_visibility
     if len(chunks) > 1:  # no frame has a cloud yet
         for t in frames:
-            final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
+            final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply", visibility_form=form)
     elif final is not traj:  # the clouds carry the stitched trajectories' ids and rows
         for t in frames:
             if _frame_changed(traj, final, t):
-                final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply")
+                final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply", visibility_form=form)
     final.save(work / "trajectories.npz")
     return final
 

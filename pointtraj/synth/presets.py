@@ -13,6 +13,8 @@ paper69    69       1280x1024   600       two rings on a 1.6 m radius (just outs
                                           down) and 34 at 2.2 m aimed at (0, 0, 1.1)
                                           (tilted 34.5 degrees down), rings staggered by
                                           half a step; field of view 93.7 x 81.0 degrees
+paper69q   69       320x256     150       paper69's geometry at a quarter of its resolution
+                                          (for affordable long runs, e.g. memory benchmarks)
 ring12     12       800x640     420       one ring, radius 2.5 m, heights alternating
                                           1.1 m / 2.0 m, aimed at (0, 0, 0.9);
                                           field of view 87.2 x 74.6 degrees
@@ -144,6 +146,15 @@ def _paper69() -> CameraRig:
     return CameraRig(lower + upper)
 
 
+def _paper69q() -> CameraRig:
+    size, focal, radius = (320, 256), 150.0, 1.6
+    lower = ring_cameras(35, radius, 1.0, (0.0, 0.0, 0.9), size, focal)
+    upper = ring_cameras(
+        34, radius, 2.2, (0.0, 0.0, 1.1), size, focal, start_angle=math.pi / 34, first_index=35
+    )
+    return CameraRig(lower + upper)
+
+
 def _ring12() -> CameraRig:
     return CameraRig(ring_cameras(12, 2.5, [1.1, 2.0], (0.0, 0.0, 0.9), (800, 640), 420.0))
 
@@ -164,6 +175,11 @@ PRESETS: dict[str, RigPreset] = {
         "69 cameras, 1280x1024, f=600 px (FOV 93.7x81.0 deg), two rings (35 at 1.0 m, 34 at "
         "2.2 m) on a 1.6 m radius around the 3 m x 2.5 m stage cylinder, 30 Hz",
         _paper69,
+    ),
+    "paper69q": RigPreset(
+        "paper69 at a quarter of its resolution: 69 cameras, 320x256, f=150 px (the same "
+        "fields of view and geometry), 30 Hz (for affordable long runs)",
+        _paper69q,
     ),
     "ring12": RigPreset(
         "12 cameras, 800x640, f=420 px (FOV 87.2x74.6 deg), one ring of radius 2.5 m at "

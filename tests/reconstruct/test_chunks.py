@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -270,13 +271,13 @@ def test_chunks_resume_and_track_as_one_run_would(tiny6: Path, tmp_path: Path):
     reference = _arrays(work)
     # the first chunk tracks frames 0-2 exactly as an unchunked run does
     one = _one_chunk(tiny6, tmp_path)
+    from pointtraj.reconstruct.framestore import FrameStore
+
     for t in range(3):
-        with (
-            np.load(work / "chunks" / "000000-000003" / "state" / f"{t:06d}.npz") as a,
-            np.load(one / "state" / f"{t:06d}.npz") as b,
-        ):
-            np.testing.assert_array_equal(a["rec_xyz"], b["rec_xyz"])
-            np.testing.assert_array_equal(a["rec_ids"], b["rec_ids"])
+        a = FrameStore(work / "chunks" / "000000-000003", 4).read_record(t)
+        b = FrameStore(one, 4).read_record(t)
+        np.testing.assert_array_equal(a.xyz, b.xyz)
+        np.testing.assert_array_equal(a.ids, b.ids)
     # a complete chunk is not recomputed; one without its tail only tracks the tail
     cap = Capture.open(tiny6)
     first = work / "chunks" / "000000-000003"
@@ -286,15 +287,18 @@ def test_chunks_resume_and_track_as_one_run_would(tiny6: Path, tmp_path: Path):
     (first / "tail.npz").unlink()
     result = reconstruct_chunk(task)
     assert result.tracked == 0 and (first / "tail.npz").read_bytes() == tail
-    # an interrupted chunk resumes after its last complete frame, to the same result
+    # an interrupted chunk resumes after its last complete frame, to the same result: the
+    # interruption after frame 3 is a run of the chunk's first frames into a fresh folder
     second = work / "chunks" / "000001-000006"
+    store = dict(np.load(second / "trajectories.npz"))
+    shutil.rmtree(second)
+    reconstruct_chunk(ChunkTask(str(tiny6), cap.rig, str(second), 1, 4, 4, CHUNKED))
     (second / "trajectories.npz").unlink()
-    (second / "state" / "000005.npz").unlink()
-    (second / "state" / "000004.npz").unlink()
     task = ChunkTask(str(tiny6), cap.rig, str(second), 1, 6, 6, CHUNKED)
     assert reconstruct_chunk(task).tracked == 2
+    for k, v in np.load(second / "trajectories.npz").items():
+        np.testing.assert_array_equal(v, store[k], err_msg=k)
     (second / "trajectories.npz").unlink()
-    (second / "state" / "000005.npz").unlink()
     (first / "tail.npz").unlink()
     (work / "trajectories.npz").unlink()
     reconstruct_work(work, tiny6, CHUNKED)

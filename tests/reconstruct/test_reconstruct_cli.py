@@ -67,10 +67,27 @@ def test_reconstruct_writes_the_work_folder_and_resumes(plane_capture: Path, tmp
         order, ref = np.argsort(ids), np.argsort(fs.track_id)
         np.testing.assert_allclose(vis[order], fs.visibility[ref], atol=1e-6)
         np.testing.assert_allclose(pcd.point.positions.numpy()[order], fs.xyz[ref], atol=1e-6)
-    # interrupt after frame 1: the resumed run reproduces the same store
-    for t in (2, 3):
-        (work / "state" / f"{t:06d}.npz").unlink()
-    (work / "trajectories.npz").unlink()
+    # interrupted after frame 1, the resumed run reproduces the same store
+    from pointtraj.stages import load_reconstruct_config, reconstruct_work
+
+    class Crash(Exception):
+        pass
+
+    def crash_after_frame_1(label: str, done: int, total: int) -> None:
+        if done == 2:
+            raise Crash
+
+    crashed = tmp_path / "crashed"
+    with pytest.raises(Crash):
+        reconstruct_work(
+            crashed, plane_capture, load_reconstruct_config(cfg), progress=crash_after_frame_1
+        )
+    assert sorted(p.name for p in (crashed / "state").iterdir()) == [
+        "000000.npz",
+        "000001.npz",
+        "live.npz",
+    ]
+    work = crashed
     res = _run(plane_capture, "--out", work, "--config", cfg)
     assert res.exit_code == 0, res.output
     again = Trajectories.load(work / "trajectories.npz")

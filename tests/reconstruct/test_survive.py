@@ -175,8 +175,8 @@ def test_one_view_tails_are_trimmed_and_bridges_kept():
 
 def test_a_tracker_state_with_a_wrong_lone_count_is_refused(tmp_path):
     from pointtraj.errors import FileFormatError
-    from pointtraj.reconstruct.stage import _load_state, _save_state
-    from pointtraj.reconstruct.track import FrameRecord, TrackState
+    from pointtraj.reconstruct.framestore import FrameStore
+    from pointtraj.reconstruct.track import TrackState
 
     C = 3
     st = TrackState(
@@ -188,23 +188,11 @@ def test_a_tracker_state_with_a_wrong_lone_count_is_refused(tmp_path):
         2,
         np.array([0, 1]),
     )
-    rec = FrameRecord(
-        4,
-        np.arange(2),
-        np.zeros((2, 3), np.float32),
-        np.zeros((2, C), np.uint8),
-        np.zeros(2, np.float32),
-        np.zeros((2, 3), np.uint8),
-    )
-    path = tmp_path / "000004.npz"
-    _save_state(path, rec, st)
-    _, back = _load_state(path, C)
-    assert back.lone.tolist() == [0, 1]
-    d = dict(np.load(path))
-    d["live_lone"] = np.zeros(5, np.int64)
-    np.savez(path, **d)
+    store = FrameStore(tmp_path, C)
+    store.write_live(st)
+    assert store.read_live().lone.tolist() == [0, 1]
+    d = dict(np.load(store.live_path))
+    d["lone"] = np.zeros(5, np.int64)
+    np.savez(store.live_path, **d)
     with pytest.raises(FileFormatError, match="live_lone"):
-        _load_state(path, C)
-    del d["live_lone"]  # a state of an older version: all 0
-    np.savez(path, **d)
-    assert _load_state(path, C)[1].lone.tolist() == [0, 0]
+        store.read_live()
