@@ -726,11 +726,18 @@ class Tracker:
             ``rig.project(xyz)``.
         cover : (C, N, 2) float64 ndarray
             The observations, and the projections in the cameras where a point is in the
-            image and not occluded but not observed (NaN elsewhere).
+            image, not occluded and on the side its observing cameras see (within 90 degrees
+            of their mean direction: the far side of a limb or a ball is within the occlusion
+            test's tolerance of the near side and must not cover it), but not observed (NaN
+            elsewhere).
         """
+        from .views import _directions, _facing
+
         proj = self.rig.project(xyz)
-        visible = proj.in_image & ~self._occluded(xyz, vis, proj).T  # (C, N)
         seen = np.all(np.isfinite(pix), axis=2)
+        to_cams = _directions(self.rig, xyz).astype(np.float32)  # (C, N, 3)
+        front = np.einsum("cnk,nk->cn", to_cams, _facing(seen, to_cams)) > 0
+        visible = proj.in_image & front & ~self._occluded(xyz, vis, proj).T  # (C, N)
         cover = np.where(seen[..., None], pix, np.where(visible[..., None], proj.pixels, np.nan))
         return proj, cover
 
