@@ -57,6 +57,18 @@ class ReconstructConfig:
         trajectory's observation lies within this many pixels of its own.
     cover_views : int
         See ``cover_px``.
+    cover_visible : bool
+        What covers the surface (on by default): a live point covers the pixels around its
+        projection in every camera where it is in the image, not occluded and on the side its
+        observing cameras see (within 90 degrees of their mean direction), observed or not;
+        otherwise only around its observations. It applies to matched points (``cover_px``)
+        and to densification's candidate grid (within ``0.75 * densify.step_px`` of a
+        covering pixel in the reference camera, before the sweep). A live point that view
+        discovery has not found in a camera yet (view recall is about 0.5 on paper69) then
+        no longer leaves a hole there that new points fill every frame: on paper69 the live
+        points grew by about 30,000 a frame (50k, 80k, 108k in frames 0-2; 50k, 75k, 99k with
+        it), and those on the actors were mostly duplicates of tracked surface
+        (``docs/reconstruction.md``, "Bounded density and the back-off").
     occlusion_depth_m : float
         Depth tolerance of the occlusion test against the frame's own points (metres), and its
         upper bound when it comes from the points' uncertainty; 0 turns the test off.
@@ -162,6 +174,7 @@ class ReconstructConfig:
     fb_max_px: float = 1.0
     cover_px: float = 3.0
     cover_views: int = 2
+    cover_visible: bool = True
     occlusion_depth_m: float = 0.05
     occlusion_sigmas: float = 0.0
     occlusion_min_m: float = 0.01

@@ -134,6 +134,9 @@ class FrameStore:
             pixels_mask=np.packbits(pmask, axis=None),
             pixels_values=pix[pmask],  # (K, 2)
             lone=state.lone,
+            # view discovery's back-off counters, mostly 0: the flat (N * C) indices of the rest
+            misses_index=np.flatnonzero(state.misses),
+            misses_values=state.misses.ravel()[np.flatnonzero(state.misses)],
             next_id=np.int64(state.next_id),
         )
 
@@ -249,10 +252,20 @@ class FrameStore:
             pmask = np.unpackbits(d["pixels_mask"], count=C * N).astype(bool).reshape(C, N)
             pix = np.full((C, N, 2), np.nan, np.dtype(str(d["pixels_dtype"])))
             pix[pmask] = d["pixels_values"]
+            misses = np.zeros(N * C, np.uint8)  # absent before the back-off: all 0
+            if "misses_index" in d:
+                misses[d["misses_index"]] = d["misses_values"]
             state = TrackState(
-                int(d["frame"]), ids, d["xyz"], vis, pix, int(d["next_id"]), d["lone"]
+                int(d["frame"]),
+                ids,
+                d["xyz"],
+                vis,
+                pix,
+                int(d["next_id"]),
+                d["lone"],
+                misses.reshape(N, C),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
         _check_live(path, state)
         return state
@@ -438,6 +451,7 @@ def _check_live(path: Path, state: TrackState) -> None:
         "visibility": (state.visibility.shape, (N, C)),
         "pixels": (state.pixels.shape, (C, N, 2)),
         "lone": (state.lone.shape, (N,)),
+        "misses": (state.misses.shape, (N, C)),
     }
     for name, (got, want) in problems.items():
         if got != want:

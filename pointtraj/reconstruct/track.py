@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..camera import CameraRig
+from ..camera import CameraRig, Projection
 from ..errors import ValidationError, check_array
 from ..geometry import axis_angles
 from ..trajectories import quantize_visibility
@@ -30,7 +30,7 @@ from .config import ReconstructConfig
 from .flow import expand_views, to_grey, track_flow
 from .matching import MultiViewTracks, match_frame, resolve_ambiguous
 from .survive import carry_one_view, predict_rigid
-from .views import depth_uncertainty, discover_views
+from .views import depth_uncertainty, discover_views, record_misses, retry_due, retry_periods
 
 if TYPE_CHECKING:  # pragma: no cover
     from .triangulate import Triangulation
@@ -74,6 +74,9 @@ class TrackState:
     lone : (N,) int64 ndarray, optional
         Frames each point has gone on with fewer than two views (0 where it has two or more;
         :mod:`~.survive`). Default: all 0.
+    misses : (N, C) uint8 ndarray, optional
+        View discovery's failed searches in a row per point and camera, the back-off of
+        :func:`~.views.retry_due` (0: search the camera at the next frame). Default: all 0.
     """
 
     frame: int
@@ -83,10 +86,13 @@ class TrackState:
     pixels: np.ndarray
     next_id: int
     lone: np.ndarray | None = None
+    misses: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.lone is None:
             self.lone = np.zeros(len(self.ids), np.int64)
+        if self.misses is None:
+            self.misses = np.zeros((len(self.ids), self.visibility.shape[1]), np.uint8)
 
     @classmethod
     def empty(cls, num_cameras: int, frame: int = -1) -> TrackState:
@@ -403,15 +409,20 @@ class Tracker:
 
         # 2. dense matching: new points where no live trajectory is
         new_tri, new_obs = None, np.zeros((C, 0, 2))
+        live_proj, cover = None, np.zeros((C, 0, 2))
         if restart or (t - self._first_frame) % cfg.match_every == 0:
             tracks = match_frame(rig, images, self.edges, cfg.matching)
             new_tri, new_obs = self._triangulate_tracks(tracks)
             keep_new = self._alive(new_tri) & (
                 np.count_nonzero(new_tri.inliers, axis=0) >= cfg.min_views_new
             )
-            live_pix = np.where(tri_old.inliers[..., None] & keep_old[None, :, None], obs, np.nan)
+            cover = np.where(tri_old.inliers[..., None], obs, np.nan)[:, keep_old]
+            if cfg.cover_visible and keep_old.any():
+                live_proj, cover = self._cover_pixels(
+                    tri_old.points[keep_old], tri_old.visibility[keep_old], cover
+                )
             new_pix = np.where(new_tri.inliers[..., None], new_obs, np.nan)
-            covered = covered_by(live_pix, new_pix, cfg.cover_px, cfg.cover_views)
+            covered = covered_by(cover, new_pix, cfg.cover_px, cfg.cover_views)
             keep_new &= ~covered
             logger.debug("frame %d: %d new points, %d covered", t, keep_new.sum(), covered.sum())
 
@@ -425,18 +436,25 @@ class Tracker:
         if new_tri is not None:
             parts.append((new_tri, new_obs, keep_new))
             if cfg.densify.enabled:
-                parts.append(self._densify(grey, prepared, parts))
+                parts.append(self._densify(grey, prepared, parts, cover))
         xyz, vis, err, pix = _union(parts)
         n_old = int(keep_old.sum())
         old_ids = st.ids[keep_old]
+        misses = np.zeros((len(xyz), C), np.uint8)
+        misses[:n_old] = st.misses[keep_old]
+        proj = _extend_projection(rig, live_proj, xyz) if len(xyz) else None
         if self._expand_views and len(xyz):
             xyz, vis, err, pix = self._expand(grey, xyz, vis, err, pix)
+            proj = None
         if cfg.views.enabled and len(xyz):
-            xyz, vis, err, pix, keep = self._discover(t, prepared, xyz, vis, err, pix, old_ids)
+            xyz, vis, err, pix, keep, misses, proj = self._discover(
+                t, prepared, xyz, vis, err, pix, old_ids, misses, proj
+            )
             xyz, vis, err, pix = xyz[keep], vis[keep], err[keep], pix[:, keep]
+            misses, proj = misses[keep], _take_projection(proj, keep)
         enough = np.count_nonzero(vis > cfg.visibility_threshold, axis=1) >= cfg.min_views
         if len(xyz):
-            vis = np.where(self._occluded(xyz, vis), np.float32(0), vis)
+            vis = np.where(self._occluded(xyz, vis, proj), np.float32(0), vis)
         views = np.count_nonzero(vis > cfg.visibility_threshold, axis=1)
         seen = views >= cfg.min_views
         lone = np.zeros(len(xyz), np.int64)  # frames on fewer than two views, after this one
@@ -449,7 +467,14 @@ class Tracker:
         xyz, vis, err, pix = xyz[seen], vis[seen], err[seen], pix[:, seen]
         pix = np.where((vis.T > cfg.visibility_threshold)[..., None], pix, np.nan)
         self.state = TrackState(
-            t, ids, xyz, vis, pix.astype(np.float32), st.next_id + n_new, lone[seen]
+            t,
+            ids,
+            xyz,
+            vis,
+            pix.astype(np.float32),
+            st.next_id + n_new,
+            lone[seen],
+            misses[seen],
         )
         self._prev_grey = grey
         logger.info(
@@ -547,32 +572,45 @@ class Tracker:
         err: np.ndarray,
         pix: np.ndarray,
         old_ids: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        misses: np.ndarray,
+        proj: Projection | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, Projection]:
         """View discovery (:func:`~.views.discover_views`) and re-triangulation.
 
-        The first ``len(old_ids)`` points are tracked ones: their cameras are searched every
-        ``views.retry_every`` frames, staggered by id and camera. Returns the points and which
-        to keep (new two-view points that a searched third camera did not confirm are not).
+        The first ``len(old_ids)`` points are tracked ones: a camera where the search failed
+        is searched again after a back-off (:func:`~.views.retry_due`, from ``misses`` (N, C)
+        uint8), staggered by id and camera; new points, points on one view and cameras that
+        newly see a point are searched at once. ``proj`` is ``rig.project(xyz)`` when the
+        caller has it. Returns the points, which to keep (new two-view points that a searched
+        third camera did not confirm are not), the updated failure counts and the points'
+        projection.
         """
         cfg = self.config
         C, N, n_old = len(self.rig), len(xyz), len(old_ids)
-        proj = self.rig.project(xyz)
+        if proj is None:
+            proj = self.rig.project(xyz)
         cand = proj.in_image & ~self._occluded(xyz, vis, proj).T
-        every = cfg.views.retry_every or max(1, C // 16)
-        if every > 1 and n_old:
-            due = (old_ids[None, :] + np.arange(C)[:, None] + t) % every == 0
+        due = np.ones((C, N), bool)
+        if n_old:
+            every, max_every = retry_periods(cfg.views, C)
+            due[:, :n_old] = retry_due(misses[:n_old], old_ids, t, every, max_every)
             one_view = np.all(np.isfinite(pix[:, :n_old]), axis=2).sum(axis=0) < 2
-            cand[:, :n_old] &= due | one_view[None, :]
+            due[:, :n_old] |= one_view[None, :]
         grown, searched = discover_views(
-            self.rig, images, xyz, pix, cand, cfg.views, sigma_px=cfg.sigma_px
+            self.rig, images, xyz, pix, cand & due, cfg.views, sigma_px=cfg.sigma_px
         )
+        before = xyz
         xyz, vis, err, pix = self._retriangulate(xyz, vis, err, pix, grown)
+        misses = record_misses(misses, cand, due, np.all(np.isfinite(pix), axis=2))
+        moved = np.flatnonzero(np.any(xyz != before, axis=1))
+        if moved.size:
+            proj = _update_projection(self.rig, proj, xyz, moved)
         keep = np.ones(N, bool)
         if cfg.views.confirm_new:
             views = np.count_nonzero(vis > cfg.visibility_threshold, axis=1)  # (N,)
             unconfirmed = (views < 3) & searched.any(axis=0)
             keep[n_old:] = ~unconfirmed[n_old:]
-        return xyz, vis, err, pix, keep
+        return xyz, vis, err, pix, keep, misses, proj
 
     def _retriangulate(
         self,
@@ -614,14 +652,17 @@ class Tracker:
         grey: list[np.ndarray],
         prepared: Sequence[np.ndarray],
         parts: list[tuple[Triangulation, np.ndarray, np.ndarray]],
+        cover: np.ndarray,
     ) -> tuple[Triangulation, np.ndarray, np.ndarray]:
-        """Patch densification (:func:`~.densify.densify`) around the frame's points so far."""
+        """Patch densification (:func:`~.densify.densify`) around the frame's points so far;
+        ``cover`` (C, n, 2) are more pixels that count as taken (:meth:`_cover_pixels`)."""
         from .densify import densify
         from .triangulate import triangulate_ransac
 
         cfg = self.config
         xyz, _, _, pix = _union(parts)
-        dense = densify(self.rig, prepared, xyz, pix, pix, cfg.densify)
+        taken = np.concatenate([pix, cover], axis=1) if cover.shape[1] else pix
+        dense = densify(self.rig, prepared, xyz, pix, taken, cfg.densify)
         for c in range(len(self.rig)):  # keep the views that Lucas-Kanade can follow: a flow
             # from the image to itself fails where its minimum-eigenvalue test will
             dense[c] = track_flow(
@@ -666,6 +707,39 @@ class Tracker:
         after[kept] = enough
         self.stops["occlusion"] += int((ended & kept & after).sum())
         self.stops["visibility"] += int((ended & kept & ~after).sum())
+
+    def _cover_pixels(
+        self, xyz: np.ndarray, vis: np.ndarray, pix: np.ndarray
+    ) -> tuple[Projection, np.ndarray]:
+        """Where the live points cover the images (``cover_visible``).
+
+        Parameters
+        ----------
+        xyz : (N, 3) float ndarray
+        vis : (N, C) float ndarray
+        pix : (C, N, 2) float ndarray
+            Their observations (NaN where absent).
+
+        Returns
+        -------
+        projection : Projection
+            ``rig.project(xyz)``.
+        cover : (C, N, 2) float64 ndarray
+            The observations, and the projections in the cameras where a point is in the
+            image, not occluded and on the side its observing cameras see (within 90 degrees
+            of their mean direction: the far side of a limb or a ball is within the occlusion
+            test's tolerance of the near side and must not cover it), but not observed (NaN
+            elsewhere).
+        """
+        from .views import _directions, _facing
+
+        proj = self.rig.project(xyz)
+        seen = np.all(np.isfinite(pix), axis=2)
+        to_cams = _directions(self.rig, xyz).astype(np.float32)  # (C, N, 3)
+        front = np.einsum("cnk,nk->cn", to_cams, _facing(seen, to_cams)) > 0
+        visible = proj.in_image & front & ~self._occluded(xyz, vis, proj).T  # (C, N)
+        cover = np.where(seen[..., None], pix, np.where(visible[..., None], proj.pixels, np.nan))
+        return proj, cover
 
     def _occluded(self, xyz: np.ndarray, vis: np.ndarray, projection=None) -> np.ndarray:
         """(N, C) views of the frame's points hidden behind its own surface (all False when
@@ -738,6 +812,34 @@ def _union(
         axis=1,
     )
     return xyz, vis, err, pix
+
+
+def _extend_projection(rig: CameraRig, head: Projection | None, xyz: np.ndarray) -> Projection:
+    """``rig.project(xyz)`` (N points), reusing ``head``, the projection of its first rows."""
+    n = 0 if head is None else head.depth.shape[1]
+    if n == 0:
+        return rig.project(xyz)
+    tail = rig.project(xyz[n:])
+    return Projection(
+        np.concatenate([head.pixels, tail.pixels], axis=1),
+        np.concatenate([head.depth, tail.depth], axis=1),
+        np.concatenate([head.in_image, tail.in_image], axis=1),
+    )
+
+
+def _update_projection(
+    rig: CameraRig, proj: Projection, xyz: np.ndarray, rows: np.ndarray
+) -> Projection:
+    """``proj`` with the points ``rows`` (indices into ``xyz`` (N, 3)) projected anew."""
+    part = rig.project(xyz[rows])
+    pixels, depth, in_image = proj.pixels.copy(), proj.depth.copy(), proj.in_image.copy()
+    pixels[:, rows], depth[:, rows], in_image[:, rows] = part.pixels, part.depth, part.in_image
+    return Projection(pixels, depth, in_image)
+
+
+def _take_projection(proj: Projection, keep: np.ndarray) -> Projection:
+    """The projection of the points selected by ``keep`` ((N,) bool)."""
+    return Projection(proj.pixels[:, keep], proj.depth[:, keep], proj.in_image[:, keep])
 
 
 def _empty_live(C: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -19,10 +19,12 @@ discovery uses the calibration instead, as the plane sweep of :mod:`.densify` do
    the point at the best depth projected into c. The tracker then re-triangulates with RANSAC,
    which keeps the view only where it agrees with the others.
 
-A point's unobserved cameras are searched when it is new, and then every ``retry_every``
-frames (staggered by point and camera), so that a tracked point does not pay for the same
-fruitless search every frame; a point carried on one view (:mod:`.survive`) every frame, over
-the widest depth range (one view gives no triangulation angle).
+A point's unobserved cameras are searched when it is new and when a camera newly sees it;
+a camera where the search failed is searched again after ``retry_every`` frames, then after
+twice as many at each further failure up to ``max_retry_every`` (staggered by point and camera),
+so that a tracked point does not pay for the same fruitless search every frame
+(:func:`retry_due`). A point carried on one view (:mod:`.survive`) is searched every frame,
+over the widest depth range (one view gives no triangulation angle).
 """
 
 from __future__ import annotations
@@ -37,7 +39,15 @@ from ..camera import CameraRig
 from ..errors import ValidationError, check_array
 from .densify import _ncc, _rays, _sample, _zscore
 
-__all__ = ["ViewsConfig", "discover_views", "point_normals", "depth_uncertainty"]
+__all__ = [
+    "ViewsConfig",
+    "discover_views",
+    "point_normals",
+    "depth_uncertainty",
+    "retry_due",
+    "retry_periods",
+    "record_misses",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -76,10 +86,20 @@ class ViewsConfig:
     normal_neighbors : int
         Neighbours of a point that its surface normal is fitted to.
     retry_every : int
-        A tracked point's unobserved cameras are searched every this many frames (new points
-        at once); 0 derives it from the rig, ``max(1, C // 16)`` for C cameras, so that a
-        point costs about as much a frame on a 69-camera dome (every 4th frame) as on an
-        8-camera ring (every frame).
+        A camera where a tracked point was searched and not found is searched again after
+        this many frames, staggered by point and camera; 0 derives it from the rig,
+        ``max(1, C // 16)`` for C cameras, so that a point costs about as much a frame on a
+        69-camera dome (every 4th frame) as on an 8-camera ring (every frame). New points, and
+        cameras that newly see a point (it was occluded, outside the image or observed the
+        frame before), are searched at once.
+    max_retry_every : int
+        Back-off: after each further failed search of a (point, camera) the period doubles,
+        up to this many frames (the tracker keeps a failure count per point and camera,
+        ``TrackState.misses``); 0 derives it from ``retry_every``: four times it where that
+        is above 1 (16 frames on a 69-camera dome), and no back-off where it is 1 (rigs of up
+        to 31 cameras, where searching every frame costs little: on the demo's 8 cameras a
+        back-off to 4 frames lowered view recall from 0.733 to 0.710 over frames 0-29);
+        ``retry_every`` or less turns the back-off off.
     normal : {"neighbors", "bisector"}
         The swept plane's normal: fitted to the point's neighbours, or the bisector of the
         directions to the reference and the searched camera (with the cameras observing the
@@ -114,6 +134,7 @@ class ViewsConfig:
     max_incidence_deg: float = 80.0
     normal_neighbors: int = 12
     retry_every: int = 0
+    max_retry_every: int = 0
     search_sigmas: float = 0.0
     confirm_new: bool = True
     normal: str = "neighbors"
@@ -133,6 +154,7 @@ class ViewsConfig:
             "max_incidence_deg": 0 < self.max_incidence_deg <= 90,
             "normal_neighbors": self.normal_neighbors >= 3,
             "retry_every": self.retry_every >= 0,
+            "max_retry_every": self.max_retry_every >= 0,
             "search_sigmas": self.search_sigmas >= 0,
             "normal": self.normal in ("neighbors", "bisector"),
         }
@@ -179,6 +201,80 @@ def point_normals(
     return normals
 
 
+#: Failed searches in a row counted per (point, camera) at most (the back-off stops doubling).
+MAX_MISSES = 8
+
+
+def retry_periods(config: ViewsConfig, num_cameras: int) -> tuple[int, int]:
+    """``(retry_every, max_retry_every)`` for a rig of ``num_cameras`` cameras, with the
+    config's 0s derived (see :class:`ViewsConfig`)."""
+    every = config.retry_every or max(1, num_cameras // 16)
+    derived = 4 * every if every > 1 else 1
+    return every, max(config.max_retry_every or derived, every)
+
+
+def retry_due(
+    misses: np.ndarray, ids: np.ndarray, t: int, every: int, max_every: int
+) -> np.ndarray:
+    """Which views of tracked points are due for a search at frame ``t``.
+
+    Parameters
+    ----------
+    misses : (N, C) uint8 ndarray
+        Failed searches in a row per point and camera (0: never searched, or the camera
+        newly sees the point).
+    ids : (N,) int ndarray
+        The points' trajectory ids (they stagger the searches).
+    t : int
+        The frame.
+    every, max_every : int
+        The period after one failure, and the longest period (:func:`retry_periods`).
+
+    Returns
+    -------
+    (C, N) bool ndarray
+        True where ``misses`` is 0, and once every ``min(every * 2^(misses - 1), max_every)``
+        frames otherwise, on frames ``t`` with ``(id + c + t)`` a multiple of that period.
+    """
+    m = np.asarray(misses, np.int64).T  # (C, N)
+    C, N = m.shape
+    if np.shape(ids) != (N,):
+        raise ValidationError(f"retry_due: expected {N} ids, got shape {np.shape(ids)}")
+    period = np.minimum(every * (1 << np.clip(m - 1, 0, MAX_MISSES)), max_every)
+    phase = np.asarray(ids, np.int64)[None, :] + np.arange(C)[:, None] + t
+    return (m == 0) | (phase % np.maximum(period, 1) == 0)
+
+
+def record_misses(
+    misses: np.ndarray, candidates: np.ndarray, due: np.ndarray, observed: np.ndarray
+) -> np.ndarray:
+    """The failure counts after a frame's search.
+
+    Parameters
+    ----------
+    misses : (N, C) uint8 ndarray
+        The counts before (see :func:`retry_due`).
+    candidates : (C, N) bool ndarray
+        The views that should see the points (in the image, not occluded).
+    due : (C, N) bool ndarray
+        The candidate views searched this frame.
+    observed : (C, N) bool ndarray
+        The views observed after the search (and the re-triangulation).
+
+    Returns
+    -------
+    (N, C) uint8 ndarray
+        One more (up to :data:`MAX_MISSES`) where a searched candidate is still unobserved;
+        0 where the view is observed or not a candidate (so that a camera that newly sees the
+        point is searched at once); unchanged elsewhere.
+    """
+    m = np.asarray(misses, np.uint8).T  # (C, N)
+    failed = candidates & due & ~observed
+    out = np.where(failed, np.minimum(m, MAX_MISSES - 1) + 1, m)
+    out = np.where(observed | ~candidates, 0, out)
+    return np.ascontiguousarray(out.T.astype(np.uint8))
+
+
 def _directions(rig: CameraRig, X: np.ndarray) -> np.ndarray:
     """(C, N, 3) unit directions from the points X (N, 3) to the camera centres."""
     centres = rig.C  # (C, 3)
@@ -214,21 +310,31 @@ def depth_uncertainty(
         Metres; infinite for a point observed by fewer than two cameras.
     """
     X = check_array("xyz", xyz, (None, 3))
+    obs_all = check_array("observed", observed, (len(rig), len(X)), dtype=bool)
     centres = rig.C  # (C, 3)
     f = rig.K[:, 0, 0]  # (C,)
     out = np.full(len(X), np.inf)
+    counts = obs_all.sum(axis=0)  # (N,)
+    by_count = np.argsort(counts, kind="stable")  # chunks of points with alike view counts
     for a in range(0, len(X), _CHUNK):
-        d = centres[:, None, :] - X[None, a : a + _CHUNK]  # (C, n, 3)
-        dist = np.linalg.norm(d, axis=2)  # (C, n)
+        # only the observing cameras matter: gather them first (K of C per point)
+        pts = by_count[a : a + _CHUNK]
+        obs = obs_all[:, pts]
+        K = int(counts[pts].max(initial=0))
+        if K < 2:
+            continue
+        cams = np.argsort(~obs, axis=0, kind="stable")[:K]  # (K, n) observing cameras first
+        valid = np.take_along_axis(obs, cams, axis=0)  # (K, n)
+        d = centres[cams] - X[None, pts]  # (K, n, 3)
+        dist = np.linalg.norm(d, axis=2)  # (K, n)
         u = (d / np.maximum(dist[..., None], 1e-12)).astype(np.float32)
-        obs = observed[:, a : a + _CHUNK]
-        cos = np.einsum("cnk,dnk->ncd", u, u)  # (n, C, C)
-        both = obs.T[:, :, None] & obs.T[:, None, :]
+        cos = np.einsum("cnk,dnk->ncd", u, u)  # (n, K, K)
+        both = valid.T[:, :, None] & valid.T[:, None, :]
         min_cos = np.where(both, cos, 1.0).min(axis=(1, 2)).astype(np.float64)
         sin = np.sqrt(np.clip(1 - min_cos**2, 0.0, 1.0))
-        scale = np.where(obs, dist / f[:, None], 0.0).max(axis=0)  # metres per pixel
+        scale = np.where(valid, dist / f[cams], 0.0).max(axis=0)  # metres per pixel
         with np.errstate(divide="ignore", invalid="ignore"):
-            out[a : a + _CHUNK] = np.where(sin > 1e-6, sigma_px * scale / sin, np.inf)
+            out[pts] = np.where(sin > 1e-6, sigma_px * scale / sin, np.inf)
     return out
 
 
@@ -236,12 +342,23 @@ def _references(
     to_cams: np.ndarray, observed: np.ndarray, cs: np.ndarray, ns: np.ndarray
 ) -> np.ndarray:
     """For candidate views (cs, ns), the observing camera whose direction to the point is
-    nearest the candidate camera's (to_cams: (C, N, 3) unit directions)."""
+    nearest the candidate camera's (to_cams: (C, N, 3) unit directions; the lowest index
+    among equals)."""
     out = np.empty(len(cs), np.int64)
+    counts = observed.sum(axis=0)  # (N,)
+    K = max(int(counts.max(initial=0)), 1)
+    # each point's observing cameras, in index order, padded with unobserved ones: (N, K)
+    cams = np.argsort(~observed, axis=0, kind="stable")[:K].T
+    valid = np.take_along_axis(observed.T, cams, axis=1)  # (N, K)
+    by_count = np.argsort(counts[ns], kind="stable")  # chunks of points with alike view counts
     for a in range(0, len(cs), _CHUNK):
-        c, n = cs[a : a + _CHUNK], ns[a : a + _CHUNK]
-        cos = np.einsum("mk,cmk->mc", to_cams[c, n], to_cams[:, n])  # (m, C)
-        out[a : a + _CHUNK] = np.argmax(np.where(observed[:, n].T, cos, -2.0), axis=1)
+        idx = by_count[a : a + _CHUNK]
+        c, n = cs[idx], ns[idx]
+        k = max(int(counts[n].max(initial=0)), 1)
+        kc = cams[n, :k]  # (m, k)
+        cos = np.einsum("mk,mjk->mj", to_cams[c, n], to_cams[kc, n[:, None]])  # (m, k)
+        best = np.argmax(np.where(valid[n, :k], cos, -2.0), axis=1)
+        out[idx] = kc[np.arange(len(n)), best]
     return out
 
 
@@ -331,6 +448,7 @@ def discover_views(
         textured[group] = ok
     pair = cs * C + rs
     order = np.argsort(pair, kind="stable")
+    single: list[CameraRig | None] = [None] * C
     for group in np.split(order, np.flatnonzero(np.diff(pair[order])) + 1):
         c, r = int(cs[group[0]]), int(rs[group[0]])
         n = ns[group]
@@ -352,10 +470,12 @@ def discover_views(
         )
         searched[c, n] = usable
         if ok.any():
-            p = rig.project(Xb[ok])
-            inside = p.in_image[c]
+            if single[c] is None:  # camera c alone (projecting into every camera is C times
+                single[c] = CameraRig([rig[c]])  # the work)
+            p = single[c].project(Xb[ok])
+            inside = p.in_image[0]
             sel = n[ok][inside]
-            out[c, sel] = p.pixels[c][inside] + shift[ok][inside]
+            out[c, sel] = p.pixels[0][inside] + shift[ok][inside]
             found += sel.size
     logger.debug("view discovery: %d of %d candidate views found", found, len(cs))
     return out, searched

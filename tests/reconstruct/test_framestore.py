@@ -261,14 +261,15 @@ def test_the_live_state_round_trips_bit_exact(tmp_path):
     pix = rng.normal(300, 100, (C, N, 2)).astype(np.float32)
     pix[vis.T == 0] = np.nan
     pix[0, 3, 1] = np.nan  # half a pixel: kept as it is
+    misses = rng.integers(0, 5, (N, C)).astype(np.uint8)  # view discovery's back-off
     state = TrackState(
-        7, rng.permutation(N), rng.normal(size=(N, 3)), vis, pix, 99, rng.integers(0, 3, N)
+        7, rng.permutation(N), rng.normal(size=(N, 3)), vis, pix, 99, rng.integers(0, 3, N), misses
     )
     store = FrameStore(tmp_path, C)
     store.write_live(state)
     back = store.read_live()
     assert back.frame == 7 and back.next_id == 99
-    for key in ("ids", "xyz", "visibility", "pixels", "lone"):
+    for key in ("ids", "xyz", "visibility", "pixels", "lone", "misses"):
         a, b = getattr(back, key), getattr(state, key)
         assert a.dtype == b.dtype and a.shape == b.shape, key
         assert a.tobytes() == b.tobytes() or np.array_equal(a, b, equal_nan=True), key
@@ -280,6 +281,10 @@ def test_the_live_state_round_trips_bit_exact(tmp_path):
     np.savez(store.live_path, **d)
     with pytest.raises(FileFormatError, match="live_lone"):
         store.read_live()
+    d["lone"] = state.lone
+    del d["misses_index"], d["misses_values"]  # a state from before the back-off
+    np.savez(store.live_path, **d)
+    assert not store.read_live().misses.any()
     assert FrameStore(tmp_path / "none", C).read_live() is None
 
 
