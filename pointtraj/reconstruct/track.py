@@ -320,6 +320,10 @@ class Tracker:
         np.fill_diagonal(angles, np.inf)
         near = angles <= self.config.expand_max_angle_deg
         self._expand_views = self.config.expand_views and bool(near.any())
+        # coverage by visible projections: where discovery leaves cameras unsearched for frames
+        self._cover_visible = {"on": True, "off": False}.get(
+            self.config.cover_visible, retry_periods(self.config.views, len(rig))[0] > 1
+        )
         if self.config.expand_views and not self._expand_views and len(rig) > 1:
             logger.warning(
                 "view expansion by flow is off on this rig: no two cameras' optical axes are "
@@ -417,7 +421,7 @@ class Tracker:
                 np.count_nonzero(new_tri.inliers, axis=0) >= cfg.min_views_new
             )
             cover = np.where(tri_old.inliers[..., None], obs, np.nan)[:, keep_old]
-            if cfg.cover_visible and keep_old.any():
+            if self._cover_visible and keep_old.any():
                 live_proj, cover = self._cover_pixels(
                     tri_old.points[keep_old], tri_old.visibility[keep_old], cover
                 )

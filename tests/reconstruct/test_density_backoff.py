@@ -127,7 +127,7 @@ def test_density_saturates_on_a_still_scene(four_cameras):
     )
     live, new = {}, {}
     for on in (True, False):
-        tracker = Tracker(rig, dataclasses.replace(base, cover_visible=on))
+        tracker = Tracker(rig, dataclasses.replace(base, cover_visible="on" if on else "off"))
         recs = [tracker.step(t, imgs) for t, imgs in enumerate(still)]
         live[on] = np.array([len(r) for r in recs])
         new[on] = np.array([r.num_new for r in recs])
