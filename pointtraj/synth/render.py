@@ -625,68 +625,41 @@ def render_capture(
             rendered += 1
             if on_frame is not None:
                 on_frame(t, True)
-        return CaptureSummary(
-            path=out,
-            cameras=len(rig),
-            frames=frames,
-            rendered=rendered,
-            skipped=skipped,
-            images=len(rig) * frames,
-            gt_points=len(points),
-            seconds=time.perf_counter() - start,
-            timings=timings,
-        )
-    renderer = Renderer(sc, rig, seed=seed, settings=settings)
-    timings = renderer.timings
-    timings.extra.setdefault("write", 0.0)
-    timings.extra.setdefault("ground_truth", 0.0)
+    else:
+        renderer = Renderer(sc, rig, seed=seed, settings=settings)
+        timings = renderer.timings
+        timings.extra.setdefault("write", 0.0)
+        timings.extra.setdefault("ground_truth", 0.0)
 
-    def write_view(c: int, t: int, view: RenderedView) -> float:
-        t1 = time.perf_counter()
-        cap.write_frame(c, t, view.image)
-        gtio.save_label_map(out, rig.names[c], t, view.label)
-        gtio.save_depth_map(out, rig.names[c], t, view.depth)
-        return time.perf_counter() - t1
+        # One writer thread encodes and writes images (OpenCV releases the GIL) while the main
+        # thread renders; at most ``backlog`` views wait, which bounds memory.
+        backlog = max(2, 2 * max(len(ch) for ch in renderer.camera_chunks()))
+        pending: deque[Future] = deque()
 
-    # One writer thread encodes and writes images (OpenCV releases the GIL) while the main
-    # thread renders; at most ``backlog`` views wait, which bounds memory.
-    backlog = max(2, 2 * max(len(ch) for ch in renderer.camera_chunks()))
-    pending: deque[Future] = deque()
+        def drain(keep: int) -> None:
+            while len(pending) > keep:
+                timings.extra["write"] += pending.popleft().result()
 
-    def drain(keep: int) -> None:
-        while len(pending) > keep:
-            timings.extra["write"] += pending.popleft().result()
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="synth-writer") as pool:
 
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="synth-writer") as pool:
-        for t in range(frames):
-            if gtio.frame_file(out, t).is_file():
-                skipped += 1
-                if on_frame is not None:
-                    on_frame(t, False)
-                continue
-            time_s = t / fps
-            xyz = points.world(sc.poses(time_s))  # (M, 3)
-            proj = rig.project(xyz)
-            visible = np.zeros((len(points), len(rig)), bool)
-            t_frame = time.perf_counter()
-            free = None
-            for view in renderer.render_frame(t, time_s=time_s):
-                c = view.camera
-                t0 = time.perf_counter()
-                if free is None:
-                    free = renderer.unoccluded(xyz)  # (M, C)
-                visible[:, c] = gtio.visibility_exact(
-                    proj.pixels[c], proj.in_image[c] & free[:, c], points.geometry, view.geometry
-                )
-                timings.extra["ground_truth"] += time.perf_counter() - t0
-                pending.append(pool.submit(write_view, c, t, view))
+            def write(t: int, view: RenderedView) -> None:
+                pending.append(pool.submit(_write_view, cap, out, t, view))
                 drain(backlog)
-            drain(0)  # every image and map of frame t is on disk ...
-            gtio.save_frame(out, t, xyz, visible)  # ... before its completeness marker
-            rendered += 1
-            logger.debug("frame %d rendered in %.2f s", t, time.perf_counter() - t_frame)
-            if on_frame is not None:
-                on_frame(t, True)
+
+            for t in range(frames):
+                if gtio.frame_file(out, t).is_file():
+                    skipped += 1
+                    if on_frame is not None:
+                        on_frame(t, False)
+                    continue
+                t_frame = time.perf_counter()
+                xyz, visible = _render_frame(renderer, points, t, fps, write)
+                drain(0)  # every image and map of frame t is on disk ...
+                gtio.save_frame(out, t, xyz, visible)  # ... before its completeness marker
+                rendered += 1
+                logger.debug("frame %d rendered in %.2f s", t, time.perf_counter() - t_frame)
+                if on_frame is not None:
+                    on_frame(t, True)
     return CaptureSummary(
         path=out,
         cameras=len(rig),
@@ -698,6 +671,56 @@ def render_capture(
         seconds=time.perf_counter() - start,
         timings=timings,
     )
+
+
+def _render_frame(
+    renderer: Renderer,
+    points: Any,
+    t: int,
+    fps: float,
+    write: Callable[[int, RenderedView], None],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Render frame ``t``'s views, hand each to ``write(t, view)``, and find which ground-truth
+    points each camera sees (the serial loop's and a frame task's one implementation).
+
+    Returns
+    -------
+    xyz : (M, 3) ndarray
+        The ground-truth points at frame t.
+    visible : (M, C) bool ndarray
+        Which points each camera sees.
+    """
+    from . import groundtruth as gtio
+
+    rig = renderer.rig
+    time_s = t / fps
+    xyz = points.world(renderer.scene.poses(time_s))  # (M, 3)
+    proj = rig.project(xyz)
+    visible = np.zeros((len(points), len(rig)), bool)
+    free = None
+    for view in renderer.render_frame(t, time_s=time_s):
+        c = view.camera
+        t0 = time.perf_counter()
+        if free is None:
+            free = renderer.unoccluded(xyz)  # (M, C)
+        visible[:, c] = gtio.visibility_exact(
+            proj.pixels[c], proj.in_image[c] & free[:, c], points.geometry, view.geometry
+        )
+        renderer.timings.extra["ground_truth"] += time.perf_counter() - t0
+        write(t, view)
+    return xyz, visible
+
+
+def _write_view(cap: Any, out: Path, t: int, view: RenderedView) -> float:
+    """Write one rendered view's image, label map and depth map; returns the seconds taken."""
+    from . import groundtruth as gtio
+
+    t1 = time.perf_counter()
+    name = cap.rig.names[view.camera]
+    cap.write_frame(view.camera, t, view.image)
+    gtio.save_label_map(out, name, t, view.label)
+    gtio.save_depth_map(out, name, t, view.depth)
+    return time.perf_counter() - t1
 
 
 @dataclass(frozen=True)
@@ -748,24 +771,10 @@ def _render_frame_task(context: tuple[_FrameJob, RenderSettings | None], t: int)
     out = Path(job.out)
     timings = renderer.timings = RenderTimings()
     timings.extra.update(write=0.0, ground_truth=0.0)
-    time_s = t / fps
-    xyz = points.world(renderer.scene.poses(time_s))  # (M, 3)
-    proj = rig.project(xyz)
-    visible = np.zeros((len(points), len(rig)), bool)
-    free = None
-    for view in renderer.render_frame(t, time_s=time_s):
-        c = view.camera
-        t0 = time.perf_counter()
-        if free is None:
-            free = renderer.unoccluded(xyz)  # (M, C)
-        visible[:, c] = gtio.visibility_exact(
-            proj.pixels[c], proj.in_image[c] & free[:, c], points.geometry, view.geometry
-        )
-        t1 = time.perf_counter()
-        timings.extra["ground_truth"] += t1 - t0
-        cap.write_frame(c, t, view.image)
-        gtio.save_label_map(out, rig.names[c], t, view.label)
-        gtio.save_depth_map(out, rig.names[c], t, view.depth)
-        timings.extra["write"] += time.perf_counter() - t1
+
+    def write(t: int, view: RenderedView) -> None:
+        timings.extra["write"] += _write_view(cap, out, t, view)
+
+    xyz, visible = _render_frame(renderer, points, t, fps, write)
     gtio.save_frame(out, t, xyz, visible)  # after every image and map of frame t
     return timings
