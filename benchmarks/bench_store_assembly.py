@@ -9,8 +9,9 @@ ending each frame and replaced by new ones), in one of two modes, each in its ow
 - ``files`` (this version): each record written to ``state/<t>.npz``
   (:class:`~pointtraj.reconstruct.framestore.FrameStore`) and dropped, the store assembled from
   the files (:meth:`FrameStore.assemble`);
-- ``list`` (earlier versions): every record kept in a list, the store assembled by
-  :func:`~pointtraj.reconstruct.stage.assemble_trajectories`.
+- ``list`` (as earlier versions): every record kept in a list, the store assembled by
+  :func:`~pointtraj.reconstruct.stage.assemble_trajectories` (today the same two-pass assembly
+  as from the files; earlier versions concatenated and sorted, which peaked at 1407 MiB).
 
 It prints the peak resident memory (``ru_maxrss``) after each tenth frame and after the
 assembly, and the growth of the peak between two frames (default 50 and 100).

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -386,60 +387,108 @@ class FrameStore:
         FileFormatError
             If a record file is missing or damaged (naming it).
         """
-        counts = np.zeros(0, np.int64)
-        first = np.zeros(0, np.int64)
-        last = np.zeros(0, np.int64)
-        for t in frames:
-            ids = self.read_record(t, ("ids",)).ids.astype(np.int64, copy=False)
-            if ids.size == 0:
-                continue
-            if ids.min() < 0:
-                raise ValidationError(f"{self.record_path(t)}: negative trajectory id")
-            top = int(ids.max()) + 1
-            if top > counts.size:
-                grow = max(top, 2 * counts.size) - counts.size
-                counts = np.concatenate([counts, np.zeros(grow, np.int64)])
-                first = np.concatenate([first, np.full(grow, -1, np.int64)])
-                last = np.concatenate([last, np.full(grow, -1, np.int64)])
-            seen = counts[ids] > 0
-            if np.any(last[ids[seen]] != t - 1):
-                raise ValidationError("assemble_trajectories: a trajectory skips a frame")
-            first[ids[~seen]] = t
-            last[ids] = t
-            counts[ids] += 1
-        nonzero = np.flatnonzero(counts)
-        M = int(nonzero[-1]) + 1 if nonzero.size else 0
-        if M == 0:
-            return Trajectories.empty(camera_names, fps, num_frames)
-        counts, first = counts[:M], first[:M]
-        if np.any(counts == 0):
-            raise ValidationError("assemble_trajectories: trajectory ids are not 0 .. M-1")
-        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        P, C = int(offsets[-1]), self.num_cameras
-        xyz = np.empty((P, 3), np.float32)
-        vis = np.empty((P, C), np.uint8)
-        err = np.empty(P, np.float32)
-        color = np.empty((P, 3), np.uint8)
-        for t in frames:
-            rec = self.read_record(t)
-            if len(rec) == 0:
-                continue
-            rows = offsets[rec.ids] + (t - first[rec.ids])  # (N_t,)
-            xyz[rows] = rec.xyz
-            vis[rows] = rec.visibility
-            err[rows] = rec.error
-            color[rows] = rec.color
-        return Trajectories(
-            first_frame=first,
-            offsets=offsets,
-            xyz=xyz,
-            visibility=vis,
-            reprojection_error=err,
-            color=color,
-            camera_names=list(camera_names),
-            fps=fps,
-            num_frames=num_frames,
+        return assemble_records(
+            ((t, self.read_record(t, ("ids",)).ids, self.record_path(t)) for t in frames),
+            (self.read_record(t) for t in frames),
+            self.num_cameras,
+            camera_names,
+            fps,
+            num_frames,
         )
+
+
+def assemble_records(
+    frame_ids: Iterable[tuple[int, np.ndarray, object]],
+    records: Iterable[FrameRecord],
+    num_cameras: int,
+    camera_names: list[str],
+    fps: float,
+    num_frames: int,
+) -> Trajectories:
+    """Build the ragged store in two passes over the frames, in frame order (the one
+    implementation, for records on disk, :meth:`FrameStore.assemble`, and in memory,
+    :func:`~.stage.assemble_trajectories`).
+
+    A first pass reads each frame's trajectory ids (counts, first frames: the offsets), a second
+    fills the store's rows frame by frame. Memory: the store's arrays, one frame's record and a
+    few (M,) integer arrays.
+
+    Parameters
+    ----------
+    frame_ids : iterable of (int, (N_t,) int ndarray, object)
+        Each frame's index, its records' trajectory ids, and where they come from (named in
+        errors).
+    records : iterable of FrameRecord
+        The same frames' records, in the same order.
+    num_cameras : int
+    camera_names : list of str
+    fps : float
+    num_frames : int
+
+    Returns
+    -------
+    Trajectories
+        Trajectory m is the one with id m.
+
+    Raises
+    ------
+    ValidationError
+        If an id is negative, the ids are not ``0 .. M-1`` or a trajectory skips a frame.
+    """
+    counts = np.zeros(0, np.int64)
+    first = np.zeros(0, np.int64)
+    last = np.zeros(0, np.int64)
+    for t, ids, where in frame_ids:
+        ids = ids.astype(np.int64, copy=False)
+        if ids.size == 0:
+            continue
+        if ids.min() < 0:
+            raise ValidationError(f"{where}: negative trajectory id")
+        top = int(ids.max()) + 1
+        if top > counts.size:
+            grow = max(top, 2 * counts.size) - counts.size
+            counts = np.concatenate([counts, np.zeros(grow, np.int64)])
+            first = np.concatenate([first, np.full(grow, -1, np.int64)])
+            last = np.concatenate([last, np.full(grow, -1, np.int64)])
+        seen = counts[ids] > 0
+        if np.any(last[ids[seen]] != t - 1):
+            raise ValidationError("assemble_trajectories: a trajectory skips a frame")
+        first[ids[~seen]] = t
+        last[ids] = t
+        counts[ids] += 1
+    nonzero = np.flatnonzero(counts)
+    M = int(nonzero[-1]) + 1 if nonzero.size else 0
+    if M == 0:
+        return Trajectories.empty(camera_names, fps, num_frames)
+    counts, first = counts[:M], first[:M]
+    if np.any(counts == 0):
+        raise ValidationError("assemble_trajectories: trajectory ids are not 0 .. M-1")
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    P, C = int(offsets[-1]), num_cameras
+    xyz = np.empty((P, 3), np.float32)
+    vis = np.empty((P, C), np.uint8)
+    err = np.empty(P, np.float32)
+    color = np.empty((P, 3), np.uint8)
+    for rec in records:
+        t = rec.frame
+        if len(rec) == 0:
+            continue
+        rows = offsets[rec.ids] + (t - first[rec.ids])  # (N_t,)
+        xyz[rows] = rec.xyz
+        vis[rows] = rec.visibility
+        err[rows] = rec.error
+        color[rows] = rec.color
+    return Trajectories(
+        first_frame=first,
+        offsets=offsets,
+        xyz=xyz,
+        visibility=vis,
+        reprojection_error=err,
+        color=color,
+        camera_names=list(camera_names),
+        fps=fps,
+        num_frames=num_frames,
+    )
 
 
 def _check_live(path: Path, state: TrackState) -> None:

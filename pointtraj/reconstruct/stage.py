@@ -30,7 +30,7 @@ from ..executor import Executor, SerialExecutor
 from ..trajectories import Trajectories, frame_pointcloud, write_cloud_ply
 from .chunks import Bridge, Chunk, merge_chunks, plan_chunks
 from .config import ReconstructConfig
-from .framestore import FrameStore
+from .framestore import FrameStore, assemble_records
 from .stitch import stitch_trajectories
 from .survive import trim_one_view_tails
 from .track import FrameRecord, Tracker, TrackState
@@ -51,7 +51,8 @@ logger = logging.getLogger(__name__)
 def assemble_trajectories(
     records: Sequence[FrameRecord], camera_names: list[str], fps: float, num_frames: int
 ) -> Trajectories:
-    """Build the ragged store from per-frame records (one stable sort by trajectory id).
+    """Build the ragged store from per-frame records in memory
+    (:func:`~.framestore.assemble_records`, as for records on disk).
 
     Parameters
     ----------
@@ -66,31 +67,14 @@ def assemble_trajectories(
     Trajectories
         Trajectory m is the one with id m; ids must be ``0 .. M-1``.
     """
-    if not records:
-        return Trajectories.empty(camera_names, fps, num_frames)
-    ids = np.concatenate([r.ids for r in records])  # (P,)
-    frames = np.concatenate([np.full(len(r), r.frame, np.int64) for r in records])
-    order = np.lexsort((frames, ids))  # by id, then frame
-    ids_s = ids[order]
-    M = int(ids_s[-1]) + 1 if ids_s.size else 0
-    counts = np.bincount(ids_s, minlength=M)
-    if np.any(counts == 0):
-        raise ValidationError("assemble_trajectories: trajectory ids are not 0 .. M-1")
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    first = frames[order][offsets[:-1]]
-    span = frames[order][offsets[1:] - 1] - first + 1
-    if np.any(span != counts):
-        raise ValidationError("assemble_trajectories: a trajectory skips a frame")
-    return Trajectories(
-        first_frame=first,
-        offsets=offsets,
-        xyz=np.concatenate([r.xyz for r in records])[order],
-        visibility=np.concatenate([r.visibility for r in records])[order],
-        reprojection_error=np.concatenate([r.error for r in records])[order],
-        color=np.concatenate([r.color for r in records])[order],
-        camera_names=list(camera_names),
-        fps=fps,
-        num_frames=num_frames,
+    C = records[0].visibility.shape[1] if records else len(camera_names)
+    return assemble_records(
+        ((r.frame, r.ids, f"frame {r.frame}") for r in records),
+        records,
+        C,
+        camera_names,
+        fps,
+        num_frames,
     )
 
 
