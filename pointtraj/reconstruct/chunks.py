@@ -243,16 +243,10 @@ def join_boundary(
     none = np.zeros((0, 2), np.int64)
     if overlap < 1 or A.size == 0 or B.size == 0:
         return none, JoinCount(boundary, int(A.size), int(B.size), 0)
-    from scipy.spatial import cKDTree
-
-    pa = before.xyz[_rows(before, A, t_end)].astype(np.float64)  # (nA, 3)
-    pb = after.xyz[_rows(after, B, t_end)].astype(np.float64)  # (nB, 3)
-    k = min(_CANDIDATES, B.size)
-    dist, idx = cKDTree(pb).query(pa, k=k, distance_upper_bound=tolerance_m)
-    dist, idx = dist.reshape(len(A), k), idx.reshape(len(A), k)
-    found = np.isfinite(dist)
-    a = A[np.repeat(np.arange(len(A)), k)[found.ravel()]]  # (L,)
-    b = B[idx[found]]
+    i, j, _ = _near_pairs(
+        before.xyz[_rows(before, A, t_end)], after.xyz[_rows(after, B, t_end)], tolerance_m
+    )
+    a, b = A[i], B[j]  # (L,)
     # every overlap frame where both exist
     ts = np.arange(boundary - overlap, boundary)  # (O,)
     lo = np.maximum(np.maximum(before.first_frame[a], after.first_frame[b]), ts[0])
@@ -279,6 +273,35 @@ def join_boundary(
     pairs = np.column_stack([a[keep], b[keep]]).astype(np.int64)
     pairs = pairs[np.argsort(pairs[:, 0], kind="stable")]
     return pairs, JoinCount(boundary, int(A.size), int(B.size), len(pairs))
+
+
+def _near_pairs(
+    xyz_a: np.ndarray, xyz_b: np.ndarray, tolerance_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Candidate pairs: each point of a with its nearest ``_CANDIDATES`` points of b within
+    ``tolerance_m``.
+
+    Parameters
+    ----------
+    xyz_a : (nA, 3) float ndarray
+    xyz_b : (nB, 3) float ndarray, nB >= 1
+    tolerance_m : float
+
+    Returns
+    -------
+    i, j : (L,) int ndarray
+        Indices into a and b, by increasing i.
+    dist : (L,) float ndarray
+    """
+    from scipy.spatial import cKDTree
+
+    k = min(_CANDIDATES, len(xyz_b))
+    dist, idx = cKDTree(np.asarray(xyz_b, np.float64)).query(
+        np.asarray(xyz_a, np.float64), k=k, distance_upper_bound=tolerance_m
+    )
+    dist, idx = dist.reshape(len(xyz_a), k), idx.reshape(len(xyz_a), k)
+    found = np.isfinite(dist)
+    return np.repeat(np.arange(len(xyz_a)), k)[found.ravel()], idx[found], dist[found]
 
 
 def _mutual_best(a: np.ndarray, b: np.ndarray, cost: np.ndarray, Ma: int, Mb: int) -> np.ndarray:
@@ -361,17 +384,8 @@ def match_points(
     """
     if len(xyz_a) == 0 or len(xyz_b) == 0:
         return np.zeros((0, 2), np.int64)
-    from scipy.spatial import cKDTree
-
-    k = min(_CANDIDATES, len(xyz_b))
-    dist, idx = cKDTree(np.asarray(xyz_b, np.float64)).query(
-        np.asarray(xyz_a, np.float64), k=k, distance_upper_bound=tolerance_m
-    )
-    dist, idx = dist.reshape(len(xyz_a), k), idx.reshape(len(xyz_a), k)
-    found = np.isfinite(dist)
-    i = np.repeat(np.arange(len(xyz_a)), k)[found.ravel()]
-    j = idx[found]
-    mutual = _mutual_best(i, j, dist[found], len(xyz_a), len(xyz_b))
+    i, j, dist = _near_pairs(xyz_a, xyz_b, tolerance_m)
+    mutual = _mutual_best(i, j, dist, len(xyz_a), len(xyz_b))
     i, j = i[mutual], j[mutual]
     ok = agree_in_shared_cameras(
         xyz_a[i], vis_a[i], xyz_b[j], vis_b[j], rig, tolerance_px, visibility_threshold
