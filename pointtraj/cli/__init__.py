@@ -32,6 +32,7 @@ COMMANDS: dict[str, str] = {
     "examples": "pointtraj.cli.examples:examples",
     "render": "pointtraj.cli.render:render",
     "evaluate": "pointtraj.cli.evaluate:evaluate",
+    "export": "pointtraj.cli.export:export",
 }
 
 
