@@ -11,6 +11,9 @@ reconstruction, the affinity and the calibration all use the same implementation
 - :func:`mean_rotation`, :func:`rotation_angle_deg`: chordal mean of rotations and the angle
   between rotations;
 - :func:`axis_angles`: angles between the optical axes of a rig's cameras;
+- :func:`parse_up`, :func:`detect_up`, :func:`resolve_up`: the world's up direction, set by
+  the user (``"+z"``, ``"-y"``, 3 numbers) or detected from the cameras (a ring's plane, or
+  the cameras' mean image-up direction), for floors and orbits in frames that are not z-up;
 - :func:`distort_normalized`, :func:`undistort_normalized`: OpenCV's lens model
   ``(k1, k2, p1, p2, k3, k4, k5, k6)`` and its inverse (``benchmarks/bench_undistort.py``
   compares the inverse with ``cv2.undistortPoints``).
@@ -36,6 +39,10 @@ __all__ = [
     "mean_rotation",
     "rotation_angle_deg",
     "axis_angles",
+    "UP_CHOICES",
+    "parse_up",
+    "detect_up",
+    "resolve_up",
     "distort_normalized",
     "undistort_normalized",
 ]
@@ -255,6 +262,151 @@ def axis_angles(rig: CameraRig) -> np.ndarray:
     """
     axes = rig.R[:, 2]  # (C, 3) third rows: the optical axes in world coordinates
     return np.degrees(np.arccos(np.clip(axes @ axes.T, -1.0, 1.0)))
+
+
+# -- the up axis ---------------------------------------------------------------------------------
+#: The axis names :func:`parse_up` accepts, besides ``"auto"`` and 3 numbers.
+UP_CHOICES = ("+x", "-x", "+y", "-y", "+z", "-z")
+
+#: Cameras whose mean image-up vector is shorter than this disagree (portrait and landscape
+#: cameras mixed, or cameras rolled every way): their mean is not an up direction.
+_UP_AGREEMENT = 0.5
+
+
+def parse_up(value: object, where: str = "up") -> np.ndarray | None:
+    """An up setting as a unit vector, or None for ``"auto"``.
+
+    Parameters
+    ----------
+    value : str or (3,) array-like
+        ``"auto"``, one of :data:`UP_CHOICES` (``"+z"``, ``"-y"``, ...; ``"z"`` is ``"+z"``), or
+        3 numbers (a direction, normalised here).
+    where : str
+        Named in the error message (the setting and its file).
+
+    Returns
+    -------
+    (3,) float ndarray or None
+
+    Raises
+    ------
+    ValidationError
+        For any other value (the message lists the valid ones).
+
+    Examples
+    --------
+    >>> parse_up("-y").tolist(), parse_up("auto")
+    ([0.0, -1.0, 0.0], None)
+    """
+    from .errors import ValidationError
+
+    if isinstance(value, str):
+        text = value.strip().lower()
+        if text == "auto":
+            return None
+        if text in ("x", "y", "z"):
+            text = "+" + text
+        if text in UP_CHOICES:
+            out = np.zeros(3)
+            out["xyz".index(text[1])] = 1.0 if text[0] == "+" else -1.0
+            return out
+    elif not isinstance(value, bool):
+        try:
+            v = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            v = None
+        if v is not None and v.shape == (3,) and np.all(np.isfinite(v)) and np.linalg.norm(v) > 0:
+            return v / np.linalg.norm(v)
+    raise ValidationError(
+        f"{where}: expected 'auto', one of {', '.join(UP_CHOICES)} or 3 numbers (a direction), "
+        f"got {value!r}"
+    )
+
+
+def detect_up(rig: CameraRig) -> tuple[np.ndarray, str]:
+    """The world's up direction, guessed from where the cameras are and how they are held.
+
+    Cameras are usually mounted upright (image rows horizontal) or, for portrait videos, on
+    their side; they stand around the scene, not above or below it. So:
+
+    1. If the camera centres lie near a plane with a 2-D spread (a ring or an arc around the
+       scene: the smallest singular value of the centred positions is under 25 % of the
+       middle one, which is over 20 % of the largest) and the cameras look across that plane
+       (mean ``|n . d|`` under 0.7 for optical axes ``d``), up is the plane's normal ``n``.
+       Its sign is that of the cameras' mean image-up vector ``-R[1]`` along ``n``; where that
+       is ambiguous (cameras on their side), cameras are taken to look down a little: up is
+       opposite to the mean optical axis along ``n`` (and the side of world +z if they are
+       level, which the reason then says).
+    2. Otherwise, if the cameras' image-up vectors ``-R[1]`` agree (their mean has length of
+       at least 0.5), up is their mean.
+    3. Otherwise world +z, and the reason says the guess failed.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras (``rig.R`` (C, 3, 3) world to camera, ``rig.C`` (C, 3) centres).
+
+    Returns
+    -------
+    up : (3,) float ndarray
+        Unit vector.
+    how : str
+        How it was found, for the log (``"plane of the 8 camera centres"``, ...).
+    """
+    R, C = np.asarray(rig.R, float), np.asarray(rig.C, float)
+    image_up = -R[:, 1, :]  # (C, 3) each camera's image-up direction in the world
+    mean_up = image_up.mean(axis=0)
+    axes = R[:, 2, :]  # (C, 3) optical axes
+    if len(C) >= 3:
+        _, s, vt = np.linalg.svd(C - C.mean(axis=0), full_matrices=False)
+        n = vt[2]
+        planar = s[1] > 0.2 * s[0] and s[2] < 0.25 * s[1]
+        across = float(np.abs(axes @ n).mean()) < 0.7
+        if planar and across:
+            along = float(mean_up @ n)
+            if abs(along) < 0.2:  # cameras on their side: look at where the axes tilt
+                tilt = float(axes.mean(axis=0) @ n)
+                along = -tilt if abs(tilt) > 0.05 else 1.0
+                if abs(tilt) <= 0.05:
+                    n = n if n @ [0.0, 0.0, 1.0] >= 0 else -n
+                    return n, (
+                        f"plane of the {len(C)} camera centres (sign ambiguous: the cameras "
+                        "are on their side and level; set up to choose)"
+                    )
+            return (n if along >= 0 else -n), f"plane of the {len(C)} camera centres"
+    if np.linalg.norm(mean_up) >= _UP_AGREEMENT:
+        return mean_up / np.linalg.norm(mean_up), f"mean image-up of the {len(C)} cameras"
+    return np.array([0.0, 0.0, 1.0]), (
+        f"world +z: the {len(C)} cameras give no up direction (rolled different ways and not "
+        "on a ring); set up to choose"
+    )
+
+
+def resolve_up(value: object, rig: CameraRig | None, where: str = "up") -> tuple[np.ndarray, str]:
+    """The up direction of a setting: the value itself, or :func:`detect_up` for ``"auto"``.
+
+    Parameters
+    ----------
+    value : str or (3,) array-like
+        As for :func:`parse_up`.
+    rig : CameraRig or None
+        The cameras, for ``"auto"`` (world +z without them).
+    where : str
+        Named in the error message.
+
+    Returns
+    -------
+    up : (3,) float ndarray
+        Unit vector.
+    how : str
+        Where it came from, for the log.
+    """
+    up = parse_up(value, where)
+    if up is not None:
+        return up, f"{where} = {value!r}"
+    if rig is None or len(rig) == 0:
+        return np.array([0.0, 0.0, 1.0]), "world +z (no cameras)"
+    return detect_up(rig)
 
 
 # -- lens distortion -----------------------------------------------------------------------------

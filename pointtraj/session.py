@@ -4,7 +4,7 @@ Layout (``data_specs/capture.md``)::
 
     <capture>/
       rig.toml                       calibration (pointtraj.rigio.toml)
-      capture.toml                   optional: fps = 30.0
+      capture.toml                   optional: fps = 30.0, up = "+z"
       labels.toml                    optional: the label set
       frames/<camera>/<index>.jpg    one folder per camera, integer file names (any padding),
                                      frame t = the t-th file in numeric order
@@ -19,9 +19,10 @@ from __future__ import annotations
 import logging
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -30,7 +31,17 @@ from .camera import CameraRig
 from .config import load_toml, save_toml
 from .errors import FileFormatError, ValidationError
 
-__all__ = ["Capture", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "DEFAULT_FPS"]
+__all__ = [
+    "Capture",
+    "IMAGE_EXTENSIONS",
+    "VIDEO_EXTENSIONS",
+    "DEFAULT_FPS",
+    "PLAUSIBLE_FPS",
+    "check_video_fps",
+    "CameraMedia",
+    "check_media",
+    "list_images",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -38,9 +49,12 @@ IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv")
 #: Frame rate assumed when neither capture.toml nor a video gives one.
 DEFAULT_FPS = 30.0
+#: Frame rates a video header may report and be believed, ``[low, high]``: outside it (a 0.2 fps
+#: header, or a container's time base such as 90000) the value is reported and not used.
+PLAUSIBLE_FPS = (1.0, 1000.0)
 #: JPEG quality of frames written by :meth:`Capture.write_frame`.
 JPEG_QUALITY = 95
-_CAPTURE_KEYS = ("fps", "image_format", "description", "source")
+_CAPTURE_KEYS = ("fps", "image_format", "up", "description", "source")
 _INT_NAME = re.compile(r"^-?\d+$")
 
 
@@ -55,9 +69,12 @@ def _read_image(path: Path, camera: str, frame: int) -> np.ndarray:
 class _ImageFolder:
     """Frames of one camera stored as numbered image files."""
 
-    def __init__(self, camera: str, folder: Path) -> None:
+    def __init__(self, camera: str, folder: Path, files: list[Path] | None = None) -> None:
         self.camera = camera
         self.folder = folder
+        if files is not None:  # chosen and ordered by the caller (check_media)
+            self.files = list(files)
+            return
         found: list[tuple[int, Path]] = []
         for f in folder.iterdir():
             if f.name.startswith(".") or not f.is_file():
@@ -84,14 +101,16 @@ class _ImageFolder:
         self.files = [f for _, f in found]
 
     @property
+    def path(self) -> Path:
+        """The folder, named in error messages."""
+        return self.folder
+
+    @property
     def num_frames(self) -> int:
         return len(self.files)
 
     def size(self) -> tuple[int, int] | None:
         return None if not self.files else self.read(0).shape[1::-1]
-
-    def fps(self) -> float | None:
-        return None
 
     def read(self, frame: int) -> np.ndarray:
         return _read_image(self.files[frame], self.camera, frame)
@@ -132,8 +151,10 @@ class _Video:
     def size(self) -> tuple[int, int] | None:
         return self._size
 
-    def fps(self) -> float | None:
-        return self._fps if np.isfinite(self._fps) and self._fps > 0 else None
+    @property
+    def header_fps(self) -> float:
+        """The frame rate the video's header reports (may be 0, NaN or implausible)."""
+        return self._fps
 
     def read(self, frame: int) -> np.ndarray:
         import cv2
@@ -179,7 +200,11 @@ class Capture:
     num_frames : int
         T, the number of synchronised frames.
     fps : float
-        Frame rate: ``capture.toml`` ``fps``, else the first video's, else 30.
+        Frame rate: ``capture.toml`` ``fps``, else the first plausible video header's (in
+        :data:`PLAUSIBLE_FPS`; others are reported with a warning), else 30.
+    up : (3,) float ndarray or None
+        The world's up direction from ``capture.toml`` ``up`` (unit vector), or None when it is
+        not set (``"auto"``): :func:`pointtraj.geometry.resolve_up` then detects it.
     strict : bool
         Whether inconsistencies are errors (True) or warnings (False).
     """
@@ -193,8 +218,10 @@ class Capture:
         fps: float,
         strict: bool = True,
         image_format: str | None = None,
+        up: np.ndarray | None = None,
     ) -> None:
         self.path = path
+        self.up = up
         self.rig = rig
         self._sources = sources or {}
         self.num_frames = int(num_frames)
@@ -251,38 +278,11 @@ class Capture:
         elif not isinstance(rig, CameraRig):
             rig = load_rig(rig)
         settings = _read_capture_toml(path)
-        sources = _find_sources(path)
-        extra = sorted(set(sources) - set(rig.names))
-        if extra:
-            msg = f"frames of camera(s) {', '.join(extra)} but the rig has {', '.join(rig.names)}"
-            if strict:
-                raise FileFormatError(path, msg)
-            logger.warning("%s: %s; ignoring them", path, msg)
-            for name in extra:
-                sources.pop(name)
-        missing = [n for n in rig.names if n not in sources]
-        if missing:
-            msg = f"rig camera(s) {', '.join(missing)} have no frames or video"
-            if strict or len(missing) == len(rig):
-                raise FileFormatError(path, msg)
-            logger.warning("%s: %s; dropping them from the rig", path, msg)
-            rig = rig.subset([n for n in rig.names if n in sources])
-        _check_distinct_sources({n: sources[n] for n in rig.names}, path)
-        counts = {n: sources[n].num_frames for n in rig.names}
-        empty = [n for n, c in counts.items() if c == 0]
-        if empty:
-            raise FileFormatError(path, f"camera(s) {', '.join(empty)} have no frames")
-        num_frames = min(counts.values())
-        if len(set(counts.values())) > 1:
-            msg = "cameras have different frame counts: " + ", ".join(
-                f"{n}={c}" for n, c in counts.items()
-            )
-            if strict:
-                raise FileFormatError(path, msg)
-            logger.warning("%s: %s; using the first %d frames", path, msg, num_frames)
+        checked = _check_sources(path, rig, _find_sources(path), strict)
+        rig, sources, num_frames = checked.rig, checked.sources, checked.num_frames
         fps = settings.get("fps")
         if fps is None:
-            fps = next((f for s in sources.values() if (f := s.fps()) is not None), DEFAULT_FPS)
+            fps = _fps_from_videos([sources[n] for n in rig.names], path)
         cap = cls(
             path,
             rig,
@@ -291,9 +291,10 @@ class Capture:
             fps,
             strict,
             settings.get("image_format"),
+            up=settings.get("up"),
         )
-        for name in rig.names:
-            cap._check_size(name, sources[name].size())
+        cap._sizes.update(checked.sizes)
+        cap._size_warned.update(n for n in rig.names if checked.sizes[n] != rig[n].size)
         logger.info(
             "opened capture %s: %d cameras, %d frames at %.3g fps",
             path,
@@ -504,12 +505,10 @@ class Capture:
         size = (int(size[0]), int(size[1]))
         expected = self.rig[name].size
         if size != expected:
-            msg = (
-                f"camera {name!r} frame {frame}: image is {size[0]}x{size[1]} but the "
-                f"calibration says {expected[0]}x{expected[1]}"
-            )
+            msg = _size_message(name, frame, size, expected)
             if self.strict:
-                raise FileFormatError(self.path, msg)
+                source = self._sources.get(name)
+                raise FileFormatError(self.path if source is None else source.path, msg)
             if name not in self._size_warned:
                 logger.warning("%s: %s", self.path, msg)
                 self._size_warned.add(name)
@@ -537,13 +536,311 @@ def _read_capture_toml(path: Path) -> dict[str, Any]:
                 file, f"image_format: expected 'jpg' or 'png', got {data['image_format']!r}"
             )
         out["image_format"] = data["image_format"]
+    if "up" in data:
+        from .geometry import parse_up
+
+        try:
+            out["up"] = parse_up(data["up"], "up")
+        except ValidationError as exc:
+            raise FileFormatError(file, str(exc)) from None
     return out
+
+
+def check_video_fps(fps: float | None, path: str | os.PathLike) -> float | None:
+    """A video header's frame rate if it is plausible (in :data:`PLAUSIBLE_FPS`), else None.
+
+    An implausible one (below 1 fps, above 1000, zero, NaN) is logged as a warning naming the
+    file and how to set the right one.
+
+    Parameters
+    ----------
+    fps : float or None
+        What the header reports (``cv2.CAP_PROP_FPS``).
+    path : path-like
+        The video, named in the warning.
+
+    Returns
+    -------
+    float or None
+    """
+    if fps is None or not np.isfinite(fps) or fps <= 0:
+        logger.warning(
+            "%s: the video header gives no frame rate; set fps in capture.toml "
+            "(pointtraj capture --fps)",
+            path,
+        )
+        return None
+    low, high = PLAUSIBLE_FPS
+    if not low <= fps <= high:
+        logger.warning(
+            "%s: the video header says %.4g fps, which is implausible (outside %g-%g); not "
+            "using it: set the right rate with fps = ... in capture.toml "
+            "(pointtraj capture --fps)",
+            path,
+            fps,
+            low,
+            high,
+        )
+        return None
+    return float(fps)
+
+
+def _fps_from_videos(sources: list[_ImageFolder | _Video], path: Path) -> float:
+    """The frame rate of a capture without ``capture.toml`` ``fps``: the first plausible video
+    header's (:func:`check_video_fps` warns about the others), else :data:`DEFAULT_FPS`.
+    Headers that disagree are logged."""
+    videos = [s for s in sources if isinstance(s, _Video)]
+    rates = {v.path: check_video_fps(v.header_fps, v.path) for v in videos}
+    good = {p: f for p, f in rates.items() if f is not None}
+    if len(set(good.values())) > 1:
+        logger.warning(
+            "%s: the videos' headers disagree on the frame rate (%s); using the first; set fps "
+            "in capture.toml to choose",
+            path,
+            ", ".join(f"{p.name} {f:.4g}" for p, f in good.items()),
+        )
+    if good:
+        return next(iter(good.values()))
+    if videos:
+        logger.warning(
+            "%s: no video gives a plausible frame rate; assuming %g fps (set fps in capture.toml)",
+            path,
+            DEFAULT_FPS,
+        )
+    return DEFAULT_FPS
+
+
+def _shown(file: Path, root: Path) -> str:
+    """``file`` relative to ``root`` if it is inside, else as given."""
+    try:
+        return file.relative_to(root).as_posix()
+    except ValueError:
+        return str(file)
+
+
+def _size_message(name: str, frame: int, size: tuple[int, int], expected: tuple[int, int]) -> str:
+    return (
+        f"camera {name!r} frame {frame}: image is {size[0]}x{size[1]} but the calibration says "
+        f"{expected[0]}x{expected[1]}"
+    )
+
+
+@dataclass
+class _Checked:
+    """What :func:`_check_sources` found: the rig kept, its sources, T and first-frame sizes."""
+
+    rig: CameraRig
+    sources: dict[str, _ImageFolder | _Video]
+    num_frames: int
+    sizes: dict[str, tuple[int, int]]
+
+
+def _check_sources(
+    path: Path, rig: CameraRig, sources: dict[str, _ImageFolder | _Video], strict: bool
+) -> _Checked:
+    """Match frame sources to the rig's cameras and check them, as :meth:`Capture.open` does.
+
+    Checks: sources of cameras not in the rig, rig cameras without a source, two cameras
+    reading the same files, cameras without frames, frame counts that differ (the message
+    lists every camera's count and file), and first-frame sizes that disagree with the
+    calibration (the error names the camera's file). With ``strict=False`` the recoverable
+    ones are logged: extra sources ignored, cameras without frames dropped, frame counts
+    truncated to the shortest, sizes let through.
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``path`` (or the camera's file, for a size) and what is wrong.
+    """
+    sources = dict(sources)
+    extra = sorted(set(sources) - set(rig.names))
+    if extra:
+        msg = f"frames of camera(s) {', '.join(extra)} but the rig has {', '.join(rig.names)}"
+        if strict:
+            raise FileFormatError(path, msg)
+        logger.warning("%s: %s; ignoring them", path, msg)
+        for name in extra:
+            sources.pop(name)
+    missing = [n for n in rig.names if n not in sources]
+    if missing:
+        msg = f"rig camera(s) {', '.join(missing)} have no frames or video"
+        if strict or len(missing) == len(rig):
+            raise FileFormatError(path, msg)
+        logger.warning("%s: %s; dropping them from the rig", path, msg)
+        rig = rig.subset([n for n in rig.names if n in sources])
+    sources = {n: sources[n] for n in rig.names}
+    _check_distinct_sources(sources, path)
+    counts = {n: sources[n].num_frames for n in rig.names}
+    empty = [n for n, c in counts.items() if c == 0]
+    if empty:
+        raise FileFormatError(path, f"camera(s) {', '.join(empty)} have no frames")
+    num_frames = min(counts.values())
+    if len(set(counts.values())) > 1:
+        msg = "cameras have different frame counts: " + ", ".join(
+            f"{n}={c} ({_shown(sources[n].path, path)})" for n, c in counts.items()
+        )
+        if strict:
+            raise FileFormatError(path, msg)
+        logger.warning("%s: %s; using the first %d frames", path, msg, num_frames)
+    sizes = {}
+    for name, source in sources.items():
+        size = source.size()
+        size = rig[name].size if size is None else (int(size[0]), int(size[1]))
+        if size != rig[name].size:
+            msg = _size_message(name, 0, size, rig[name].size)
+            if strict:
+                raise FileFormatError(source.path, msg)
+            logger.warning("%s: %s", source.path, msg)
+        sizes[name] = size
+    return _Checked(rig, sources, num_frames, sizes)
+
+
+_DIGITS = re.compile(r"\d+")
+
+
+def list_images(folder: str | os.PathLike) -> list[Path]:
+    """The image files of a folder in frame order, whatever their names.
+
+    Files whose names all hold a number (``frame_0012.png``, ``12.jpg``) are ordered by the
+    last number in the name, then by name; otherwise by name. Hidden files and files that are
+    not images (:data:`IMAGE_EXTENSIONS`) are left out.
+
+    Parameters
+    ----------
+    folder : path-like
+
+    Returns
+    -------
+    list of pathlib.Path
+
+    Raises
+    ------
+    FileFormatError
+        If ``folder`` is not a folder.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileFormatError(folder, "not a folder")
+    files = [
+        f
+        for f in folder.iterdir()
+        if f.is_file() and not f.name.startswith(".") and f.suffix.lower() in IMAGE_EXTENSIONS
+    ]
+    numbers = [_DIGITS.findall(f.stem) for f in files]
+    if files and all(numbers):
+        return [f for _, f in sorted(zip((int(n[-1]) for n in numbers), files))]
+    return sorted(files)
+
+
+@dataclass(frozen=True)
+class CameraMedia:
+    """One camera's frames outside a capture folder, as :func:`check_media` found them.
+
+    Attributes
+    ----------
+    camera : str
+        The rig camera.
+    kind : {"video", "images"}
+    path : pathlib.Path
+        The video file or the image folder.
+    files : tuple of pathlib.Path
+        The images in frame order (empty for a video).
+    num_frames : int
+    size : (int, int)
+        ``(width, height)`` of the first frame.
+    header_fps : float or None
+        The frame rate the video's header reports, as it is (None for images): pass it to
+        :func:`check_video_fps` before use.
+    """
+
+    camera: str
+    kind: Literal["video", "images"]
+    path: Path
+    files: tuple[Path, ...]
+    num_frames: int
+    size: tuple[int, int]
+    header_fps: float | None
+
+
+def check_media(
+    rig: CameraRig, media: Mapping[str, str | os.PathLike], *, strict: bool = True
+) -> tuple[CameraRig, list[CameraMedia], int]:
+    """Check videos or image folders against a rig before they become a capture.
+
+    The same checks as :meth:`Capture.open` (one implementation): every rig camera has media
+    and no media names an unknown camera, no two cameras read the same file, frame counts
+    agree, and first-frame sizes equal the calibration. Image folders may name their files
+    anyhow (:func:`list_images` orders them).
+
+    Parameters
+    ----------
+    rig : CameraRig
+    media : mapping of str to path-like
+        Camera name -> its video file (:data:`VIDEO_EXTENSIONS`) or image folder.
+    strict : bool
+        As for :meth:`Capture.open`: if False, rig cameras without media are dropped, frame
+        counts truncated to the shortest and size mismatches let through, with warnings.
+
+    Returns
+    -------
+    rig : CameraRig
+        The rig, less the cameras dropped (``strict=False``).
+    media : list of CameraMedia
+        In rig order.
+    num_frames : int
+        T, the synchronised frame count.
+
+    Raises
+    ------
+    FileFormatError
+        Naming the file: a missing path, a file that is not a video, a folder without images,
+        a video OpenCV cannot open, frame counts that differ (each camera's count and file
+        listed), a size that disagrees with the calibration.
+    """
+    sources: dict[str, _ImageFolder | _Video] = {}
+    for camera, where in media.items():
+        p = Path(where)
+        if p.is_dir():
+            files = list_images(p)
+            if not files:
+                raise FileFormatError(
+                    p, f"camera {camera!r}: no images ({', '.join(IMAGE_EXTENSIONS)})"
+                )
+            sources[camera] = _ImageFolder(camera, p, files)
+        elif p.is_file():
+            if p.suffix.lower() not in VIDEO_EXTENSIONS:
+                raise FileFormatError(
+                    p,
+                    f"camera {camera!r}: not a video ({', '.join(VIDEO_EXTENSIONS)}) nor an "
+                    "image folder",
+                )
+            sources[camera] = _Video(camera, p)
+        else:
+            raise FileFormatError(p, f"camera {camera!r}: no such file or folder")
+    where = Path(os.path.commonpath([str(Path(m).resolve()) for m in media.values()]))
+    checked = _check_sources(where, rig, sources, strict)
+    out = []
+    for name, src in checked.sources.items():
+        video = isinstance(src, _Video)
+        out.append(
+            CameraMedia(
+                name,
+                "video" if video else "images",
+                src.path,
+                () if video else tuple(src.files),
+                src.num_frames,
+                checked.sizes[name],
+                src.header_fps if video else None,
+            )
+        )
+    return checked.rig, out, checked.num_frames
 
 
 def _source_identity(source: _ImageFolder | _Video) -> list[tuple[Path, tuple[int, int]]]:
     """(resolved path, (device, inode)) of the files a source reads: its video, or the folder
     and its first image (a symlinked folder, or linked image files, give the same)."""
     files = [source.path] if isinstance(source, _Video) else [source.folder, *source.files[:1]]
+    files = list(dict.fromkeys(files))
     out = []
     for f in files:
         st = f.stat()

@@ -404,3 +404,145 @@ def test_write_png_roundtrip(tmp_path):
     np.testing.assert_array_equal(read_png(tmp_path / "a.png"), img)
     with pytest.raises(FileFormatError, match="cannot read"):
         read_png(tmp_path / "missing.png")
+
+
+# -- scale and up axis -----------------------------------------------------------------------
+def make_scaled_work(root: Path, scale: float = 1.0, rotation: np.ndarray | None = None) -> Path:
+    """A labelled work folder (:func:`make_work`'s scene and rig) mapped by ``X -> s Q X``:
+    ``scale`` 0.01 makes the 1.2 m scene a 1.2 cm one seen from 2-3 cm, ``rotation`` Q a world
+    frame that is not z-up."""
+    Q = np.eye(3) if rotation is None else np.asarray(rotation, float)
+    src = make_work(root / "src")
+    rig = Capture.open(src.parent / "cap").rig
+    moved = CameraRig(
+        [Camera(c.name, c.K, c.R @ Q.T, scale * Q @ c.C, c.size, c.dist) for c in rig]
+    )
+    cap = Capture.create(root / "cap", moved, fps=10.0, image_format="png")
+    for c in range(len(moved)):
+        for t in range(T):
+            cap.write_frame(c, t, np.zeros((SIZE[1], SIZE[0], 3), np.uint8))
+    LabelSet(["red_thing", "blue_thing"], [RED, BLUE]).save(root / "cap" / "labels.toml")
+    tr = Trajectories.load(src / "trajectories.npz")
+    xyz = scale * tr.dense_positions() @ Q.T
+    work = root / "work"
+    work.mkdir()
+    Trajectories.from_dense(
+        xyz, np.ones((*xyz.shape[:2], 2)), camera_names=rig.names, fps=10.0
+    ).save(work / "trajectories.npz")
+    (work / "work.toml").write_text(f'capture = "{(root / "cap").as_posix()}"\n')
+    (src / "labels.npz").rename(work / "labels.npz")
+    return work
+
+
+_SCALE_CFG = dict(frames=(3, 4), tail=3, overlays=False, video=False, legend=False, caption=False)
+
+
+def _drawn(img: np.ndarray) -> np.ndarray:
+    return np.any(img != 255, axis=2)
+
+
+def test_open3d_renders_a_centimetre_scene_like_a_metre_one(tmp_path):
+    """Regression: the Open3D engine drew nothing when the camera was within 10 cm of the
+    scene (Filament's fixed 0.1 m near plane), and the orbit framed at least 10 cm. A scene
+    and rig scaled by 0.01 must render as the full-size one does, floor grid included."""
+    big = make_scaled_work(tmp_path / "big", 1.0)
+    small = make_scaled_work(tmp_path / "small", 0.01)
+    cfg = RenderConfig(engine="open3d", views=("orbit", "cam0"), size=SIZE, **_SCALE_CFG)
+    for work in (big, small):
+        render_work(work, cfg)
+    for view in ("orbit", "cam0"):
+        a = read_png(big / "renders" / "views" / view / "000003.png")
+        b = read_png(small / "renders" / "views" / view / "000003.png")
+        assert _drawn(a).sum() > 300, view
+        assert np.all(b == RED, axis=2).sum() > 20 and np.all(b == BLUE, axis=2).sum() > 20
+        # The same picture: pixels drawn in one and not the other are under 2 % of those drawn.
+        assert np.sum(_drawn(a) ^ _drawn(b)) < 0.02 * _drawn(a).sum(), view
+
+
+def test_clip_planes_follow_the_scene():
+    from pointtraj.render.offscreen import clip_planes
+
+    cam = Camera.look_at("c", [0, 0, 0], [0, 0, 1], (64, 48), 50.0, up=(0, -1, 0))
+    near, far = clip_planes(cam, np.array([[0, 0, 0.02], [0.001, 0, 0.03]]))
+    assert near == pytest.approx(0.01) and far == pytest.approx(0.06)
+    seg = np.array([[[0, 0, 5.0], [0, 0, 40.0]]])
+    near, far = clip_planes(cam, np.array([[0, 0, 1e-9]]), seg)  # near is kept above far / 1e5
+    assert far == pytest.approx(80.0) and near == pytest.approx(80.0 / 1e5)
+    assert clip_planes(cam, np.array([[0, 0, -1.0]])) == (0.1, 100.0)  # all behind
+
+
+def test_orbit_and_floor_follow_a_y_down_world(tmp_path):
+    """A world frame whose up is -y (a camera's frame, as caliscope writes it) renders as the
+    z-up one does: up is detected from the cameras, or set with ``up``; a wrong ``up`` gives a
+    different picture."""
+    Q = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # z -> -y
+    zup = make_scaled_work(tmp_path / "z", 1.0)
+    ydown = make_scaled_work(tmp_path / "y", 1.0, Q)
+    cfg = RenderConfig(engine="opencv", views=("orbit",), size=SIZE, **_SCALE_CFG)
+    for up, zup_up in (("auto", "auto"), ("-y", "+z")):
+        render_work(zup, dataclasses.replace(cfg, up=zup_up))
+        ref = read_png(zup / "renders" / "views" / "orbit" / "000003.png")
+        render_work(ydown, dataclasses.replace(cfg, up=up))
+        img = read_png(ydown / "renders" / "views" / "orbit" / "000003.png")
+        assert np.sum(_drawn(ref) ^ _drawn(img)) < 0.02 * _drawn(ref).sum(), up
+    render_work(ydown, dataclasses.replace(cfg, up="+z"))
+    wrong = read_png(ydown / "renders" / "views" / "orbit" / "000003.png")
+    assert np.sum(_drawn(ref) ^ _drawn(wrong)) > 0.2 * _drawn(ref).sum()
+    # capture.toml's up is used when the render's is auto.
+    (ydown.parent / "cap" / "capture.toml").write_text('fps = 10.0\nup = "+z"\n')
+    render_work(ydown, cfg)
+    img = read_png(ydown / "renders" / "views" / "orbit" / "000003.png")
+    np.testing.assert_array_equal(img, wrong)
+    with pytest.raises(ValidationError, match=r"up: expected 'auto', one of \+x"):
+        RenderConfig(up="sideways")
+
+
+# -- legend placement ------------------------------------------------------------------------
+def test_legend_avoids_the_subject_on_a_portrait_image():
+    """Regression: the legend sat top-left whatever the image, covering the subject's head in
+    portrait videos. It goes to the corner covering the fewest points drawn."""
+    from pointtraj.render import legend_origin
+
+    w, h = 180, 320
+    rng = np.random.default_rng(0)
+    # A subject filling the left and top of a portrait image (head top-left, body down the left).
+    pts = np.vstack(
+        [rng.uniform([0, 0], [w, 80], (400, 2)), rng.uniform([0, 0], [50, h], (800, 2))]
+    )
+    names = ["head", "torso", "left_upper_arm"]
+    origin = legend_origin((w, h), names, "auto", pts)
+    assert origin == legend_origin((w, h), names, "bottom-right")  # the only free corner
+    assert origin[1] > h / 2
+    canvas = np.zeros((h, w, 3), np.uint8)
+    canvas[np.clip(pts[:, 1].astype(int), 0, h - 1), np.clip(pts[:, 0].astype(int), 0, w - 1)] = 255
+    out = draw_legend(canvas, names, np.array([RED, BLUE, RED], np.uint8), origin=origin)
+    changed = np.any(out != canvas, axis=2)
+    assert changed.any() and not np.any(changed & np.any(canvas > 0, axis=2))
+    assert legend_origin((w, h), names, "auto", None) == (10, 10)
+    assert legend_origin((w, h), names, "top-right")[1] == 10
+    with pytest.raises(ValidationError, match="legend corner must be 'auto' or one of"):
+        legend_origin((w, h), names, "middle")
+
+
+def test_overlay_legend_does_not_cover_the_points(tiny_work):
+    from pointtraj.rigio.toml import save_rig_toml
+
+    # Move cam0's principal point so that the subject is in the image's top-left corner.
+    rig = Capture.open(tiny_work.parent / "cap").rig
+    cam = rig["cam0"]
+    K = cam.K.copy()
+    K[:2, 2] -= (40, 30)
+    moved = CameraRig([Camera(cam.name, K, cam.R, cam.C, cam.size, cam.dist), rig["cam1"]])
+    save_rig_toml(moved, tiny_work.parent / "cap" / "rig.toml")
+    cfg = RenderConfig(
+        engine="opencv", views=(), overlay_cameras=("cam0",), frames=(3, 4), video=False,
+        caption=False, tail=0,
+    )  # fmt: skip
+    render_work(tiny_work, dataclasses.replace(cfg, legend=False))
+    plain = read_png(tiny_work / "renders" / "overlays" / "cam0" / "000003.png")
+    render_work(tiny_work, cfg)
+    with_legend = read_png(tiny_work / "renders" / "overlays" / "cam0" / "000003.png")
+    changed = np.any(with_legend != plain, axis=2)
+    points = np.any(plain != plain[0, 0], axis=2)  # the camera image is flat; points differ
+    assert changed.sum() > 100 and points.sum() > 50
+    assert not np.any(changed & points), cam.name

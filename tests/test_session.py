@@ -101,7 +101,10 @@ def test_numeric_order_and_explicit_rig(tmp_path):
 def test_frame_count_mismatch(tmp_path, caplog):
     make_capture(tmp_path / "cap", T=3)
     (tmp_path / "cap" / "frames" / "right" / "000002.png").unlink()
-    with pytest.raises(FileFormatError, match="different frame counts: left=3, right=2"):
+    with pytest.raises(
+        FileFormatError,
+        match=r"different frame counts: left=3 \(frames/left\), right=2 \(frames/right\)",
+    ):
         Capture.open(tmp_path / "cap")
     with caplog.at_level(logging.WARNING, logger="pointtraj.session"):
         cap = Capture.open(tmp_path / "cap", strict=False)
@@ -224,7 +227,9 @@ def test_videos_seek_by_index(tmp_path):
     (tmp_path / "cap" / "capture.toml").write_text("fps = 30\n")
     assert Capture.open(tmp_path / "cap").fps == 30.0
     write_video(tmp_path / "cap" / "videos" / "right.mp4", T=15, fps=24.0, camera=1)
-    with pytest.raises(FileFormatError, match="left=20, right=15"):
+    with pytest.raises(
+        FileFormatError, match=r"left=20 \(videos/left.mp4\), right=15 \(videos/right.mp4\)"
+    ):
         Capture.open(tmp_path / "cap")
     (tmp_path / "cap" / "videos" / "left.mp4").write_bytes(b"not a video")
     with pytest.raises(FileFormatError, match="left.mp4: camera 'left'"):

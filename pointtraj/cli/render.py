@@ -71,6 +71,11 @@ def parse_size(text: str) -> tuple[int, int]:
 )
 @click.option("--fps", type=float, help="MP4 frame rate (default the capture's, real time).")
 @click.option(
+    "--up",
+    help="World up direction for the floor grid and the orbit: auto (capture.toml's, else "
+    "detected from the cameras), +x, -x, +y, -y, +z or -z.",
+)
+@click.option(
     "--overlay-camera",
     "overlay_cameras",
     multiple=True,

@@ -26,7 +26,14 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from .config import ORBIT, RenderConfig
     from .offscreen import TrajectoryRenderer
-    from .overlay import draw_caption, draw_legend, draw_overlay, draw_scene, legend_image
+    from .overlay import (
+        draw_caption,
+        draw_legend,
+        draw_overlay,
+        draw_scene,
+        legend_image,
+        legend_origin,
+    )
     from .palette import UNLABELLED_COLOR, class_palette, label_colors
     from .scene import floor_grid, orbit_cameras, tail_segments
     from .stage import RenderOutput, RenderResult, render_work
@@ -44,6 +51,7 @@ __all__ = [
     "draw_legend",
     "draw_caption",
     "legend_image",
+    "legend_origin",
     "floor_grid",
     "orbit_cameras",
     "label_colors",
@@ -71,6 +79,7 @@ _HOME = {
     "draw_legend": "overlay",
     "draw_caption": "overlay",
     "legend_image": "overlay",
+    "legend_origin": "overlay",
     "label_colors": "palette",
     "class_palette": "palette",
     "UNLABELLED_COLOR": "palette",

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from ..errors import ValidationError
+from ..geometry import parse_up
 
 __all__ = ["ORBIT", "RenderConfig"]
 
@@ -62,8 +63,14 @@ class RenderConfig:
         Point the orbit camera looks at (default: the median of all point positions, so
         outliers do not move it).
     floor : bool
-        Draw a light grid on the floor (the 1st percentile of the points' heights) in the
-        views.
+        Draw a light grid on the floor (the 1st percentile of the points' heights along
+        ``up``) in the views. Its spacing is a round number (1, 2, 2.5 or 5 times a power of
+        ten) near a sixth of the scene's extent, so it suits a room or a 1 cm subject.
+    up : str or (float, float, float)
+        The world's up direction, normal to the floor grid and the axis the orbit turns about:
+        ``"auto"`` (the capture's ``capture.toml`` ``up`` if set, else detected from the
+        cameras by :func:`pointtraj.geometry.detect_up`, else +z), one of ``"+x"``, ``"-x"``,
+        ``"+y"``, ``"-y"``, ``"+z"``, ``"-z"``, or 3 numbers (a direction).
     fps : float, optional
         Frame rate of the MP4s (default the capture's, else the store's, divided by
         ``stride``: real time).
@@ -88,6 +95,11 @@ class RenderConfig:
     legend : bool
         Draw the legend (class name and colour of each class drawn) in the images; it is
         written to ``renders/legend.png`` in any case.
+    legend_corner : {"auto", "top-left", "top-right", "bottom-right", "bottom-left"}
+        Where the legend goes. ``"auto"``: per view or overlay, the corner (of top-left,
+        top-right, bottom-right) whose legend box covers the fewest of the points drawn,
+        over up to 16 frames of the range, so that it does not hide the subject (a person
+        filling a portrait video); the same corner in every frame.
     caption : bool
         Write the view name and frame number at the bottom-left of each image.
     """
@@ -109,6 +121,7 @@ class RenderConfig:
     orbit_distance: float | None = None
     orbit_center: tuple[float, float, float] | None = None
     floor: bool = True
+    up: str | tuple[float, float, float] = "auto"
     fps: float | None = None
     video: bool = True
     overlays: bool = True
@@ -118,6 +131,7 @@ class RenderConfig:
     min_length: int = 1
     unlabelled: bool = True
     legend: bool = True
+    legend_corner: Literal["auto", "top-left", "top-right", "bottom-right", "bottom-left"] = "auto"
     caption: bool = True
 
     def __post_init__(self) -> None:
@@ -132,6 +146,17 @@ class RenderConfig:
             object.__setattr__(self, name, tuple(dict.fromkeys(str(v) for v in value)))
         if self.engine not in ("open3d", "opencv"):
             raise bad("engine", "must be 'open3d' or 'opencv'")
+        if self.legend_corner not in (
+            "auto",
+            "top-left",
+            "top-right",
+            "bottom-right",
+            "bottom-left",
+        ):
+            raise bad(
+                "legend_corner",
+                "must be 'auto', 'top-left', 'top-right', 'bottom-right' or 'bottom-left'",
+            )
         if self.colors not in ("auto", "labels", "semantic_map", "grey"):
             raise bad("colors", "must be 'auto', 'labels', 'semantic_map' or 'grey'")
         if not self.views and not self.overlays:
@@ -163,5 +188,8 @@ class RenderConfig:
             raise bad("orbit_distance", "must be positive")
         if self.orbit_center is not None and len(self.orbit_center) != 3:
             raise bad("orbit_center", "must be 3 coordinates")
+        if not isinstance(self.up, str):
+            object.__setattr__(self, "up", tuple(float(v) for v in self.up))
+        parse_up(self.up, "up")  # raises ValidationError naming the valid values
         if self.fps is not None and not self.fps > 0:
             raise bad("fps", "must be positive")

@@ -24,7 +24,7 @@ from ..errors import ValidationError
 from ..trajectories import Trajectories
 from .scene import frame_geometry
 
-__all__ = ["TrajectoryRenderer"]
+__all__ = ["TrajectoryRenderer", "clip_planes"]
 
 logger = logging.getLogger(__name__)
 
@@ -59,6 +59,44 @@ def _native_output_to_log(what: str) -> Iterator[None]:
 
 
 _open_renderer: weakref.ref | None = None
+
+#: The far clipping plane is at most this many times the near one (depth buffer precision).
+_MAX_FAR_OVER_NEAR = 1e5
+
+
+def clip_planes(
+    camera: Camera, points: np.ndarray, segments: np.ndarray | None = None
+) -> tuple[float, float]:
+    """Near and far clipping distances that hold the geometry in front of ``camera``.
+
+    The depths (along the optical axis) of the points and segment ends in front of the camera
+    span ``[z_min, z_max]``; the planes are ``z_min / 2`` and ``2 z_max``, so that the scene is
+    drawn at any scale (a subject of 1 cm seen from 5 cm as well as a room seen from 5 m).
+    The near plane is raised to ``far / 1e5`` if needed, which keeps the depth buffer's
+    precision: geometry nearer than that (a point almost on the camera) is clipped.
+
+    Parameters
+    ----------
+    camera : Camera
+    points : (N, 3) float ndarray
+    segments : (S, 2, 3) float ndarray, optional
+
+    Returns
+    -------
+    near, far : float
+        Metres, ``0 < near < far``; ``(0.1, 100.0)``, Open3D's own, when nothing is in front.
+    """
+    xyz = [np.asarray(points, float).reshape(-1, 3)]
+    if segments is not None:
+        xyz.append(np.asarray(segments, float).reshape(-1, 3))
+    X = np.concatenate(xyz)
+    z = (X - camera.C) @ camera.R[2]  # (N + 2 S,) depth along the optical axis
+    z = z[np.isfinite(z) & (z > 0)]
+    if len(z) == 0:
+        return 0.1, 100.0
+    far = 2.0 * float(z.max())
+    near = max(0.5 * float(z.min()), far / _MAX_FAR_OVER_NEAR)
+    return near, far
 
 
 class TrajectoryRenderer:
@@ -186,8 +224,12 @@ class TrajectoryRenderer:
         extrinsic = np.eye(4)
         extrinsic[:3, :3] = camera.R
         extrinsic[:3, 3] = camera.t
-        # setup_camera must come after add_geometry, or Filament renders a blank image.
+        # setup_camera must come after add_geometry, or Filament renders a blank image. Its
+        # near plane is a fixed 0.1 m, which clips a scene nearer than that (a small-scale
+        # rig): replace its projection by one with clipping planes around the geometry.
         self._renderer.setup_camera(camera.K, extrinsic, *self.size)
+        near, far = clip_planes(camera, points, segments)
+        scene.camera.set_projection(camera.K, near, far, *self.size)
         return np.asarray(self._renderer.render_to_image()).copy()
 
     def render_frame(

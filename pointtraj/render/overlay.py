@@ -11,7 +11,15 @@ from ..camera import Camera, CameraRig
 from ..trajectories import Trajectories
 from .scene import tail_segments
 
-__all__ = ["draw_scene", "draw_overlay", "draw_legend", "legend_image", "draw_caption"]
+__all__ = [
+    "LEGEND_CORNERS",
+    "draw_scene",
+    "draw_overlay",
+    "draw_legend",
+    "legend_origin",
+    "legend_image",
+    "draw_caption",
+]
 
 #: Text colour of legends and captions.
 _TEXT_COLOR = (30, 30, 30)
@@ -174,12 +182,105 @@ def _legend_box(names: Sequence[str], scale: float) -> tuple[int, int]:
     return 3 * pad + th + max(widths, default=0), 2 * pad + pitch * len(names) - (pitch - th)
 
 
+#: Corners a legend may take, in order of preference on a tie; the caption is bottom-left.
+LEGEND_CORNERS = ("top-left", "top-right", "bottom-right", "bottom-left")
+#: Distance of the legend (and caption) box from the image border, pixels.
+_MARGIN = 10
+
+
+def _fit_legend(
+    names: list[str], colors: np.ndarray, h: int, y0: int, scale: float
+) -> tuple[list[str], np.ndarray]:
+    """The entries that fit in ``h - y0`` rows; the last becomes ``+N more`` if some do not."""
+    _, th, pitch, pad = _text_metrics(scale)
+    fit = max(1, (h - y0 - 2 * pad + (pitch - th)) // pitch)
+    if len(names) > fit:
+        more = len(names) - fit + 1
+        names, colors = names[: fit - 1] + [f"+{more} more"], colors[: fit - 1]
+    return names, colors
+
+
+def legend_origin(
+    size: tuple[int, int],
+    names: Sequence[str],
+    corner: str = "auto",
+    avoid: np.ndarray | None = None,
+    *,
+    radius: float = 0.0,
+    scale: float | None = None,
+) -> tuple[int, int]:
+    """Top-left corner (x, y) of the legend box, in a corner of the image.
+
+    Parameters
+    ----------
+    size : (int, int)
+        Image (width, height).
+    names : sequence of str
+        The legend's entries (they set the box's size).
+    corner : str
+        One of :data:`LEGEND_CORNERS`, or ``"auto"``: the corner whose box covers the fewest
+        of the ``avoid`` points (the subject), among top-left, top-right and bottom-right
+        (bottom-left holds the caption); top-left on a tie.
+    avoid : (N, 2) float ndarray, optional
+        Pixels the legend should not cover (projected points; NaN rows are ignored).
+    radius : float
+        Radius of the points as drawn, pixels: a point this near the box counts as covered.
+    scale : float, optional
+        Font scale (default from the image height, as :func:`draw_legend`).
+
+    Returns
+    -------
+    (int, int)
+
+    Raises
+    ------
+    ValidationError
+        For an unknown corner (the message lists them).
+    """
+    from ..errors import ValidationError
+
+    if corner != "auto" and corner not in LEGEND_CORNERS:
+        raise ValidationError(
+            f"legend corner must be 'auto' or one of {', '.join(LEGEND_CORNERS)}, got {corner!r}"
+        )
+    w, h = int(size[0]), int(size[1])
+    scale = _default_scale(h) if scale is None else scale
+    names, _ = _fit_legend(list(names) or [""], np.zeros((0, 3), np.uint8), h, _MARGIN, scale)
+    bw, bh = _legend_box(names, scale)
+    origins = {
+        "top-left": (_MARGIN, _MARGIN),
+        "top-right": (max(0, w - _MARGIN - bw), _MARGIN),
+        "bottom-right": (max(0, w - _MARGIN - bw), max(0, h - _MARGIN - bh)),
+        "bottom-left": (_MARGIN, max(0, h - _MARGIN - bh)),
+    }
+    if corner != "auto":
+        return origins[corner]
+    if avoid is None or len(avoid) == 0:
+        return origins["top-left"]
+    p = np.asarray(avoid, float).reshape(-1, 2)
+    p = p[np.isfinite(p).all(axis=1)]
+    best, fewest = origins["top-left"], None
+    for name in LEGEND_CORNERS[:3]:
+        x0, y0 = origins[name]
+        r = radius + 1  # and the anti-aliased pixel around it
+        inside = (
+            (p[:, 0] >= x0 - r)
+            & (p[:, 0] < x0 + bw + r)
+            & (p[:, 1] >= y0 - r)
+            & (p[:, 1] < y0 + bh + r)
+        )
+        n = int(inside.sum())
+        if fewest is None or n < fewest:
+            best, fewest = origins[name], n
+    return best
+
+
 def draw_legend(
     image: np.ndarray,
     names: Sequence[str],
     colors: np.ndarray,
     *,
-    origin: tuple[int, int] = (10, 10),
+    origin: tuple[int, int] = (_MARGIN, _MARGIN),
     scale: float | None = None,
 ) -> np.ndarray:
     """Draw a legend (a colour swatch and a name per class) in a light box.
@@ -194,7 +295,8 @@ def draw_legend(
     colors : (n, 3) uint8 ndarray
         RGB colour per name.
     origin : (int, int)
-        Top-left corner (x, y) of the box.
+        Top-left corner (x, y) of the box (:func:`legend_origin` chooses a corner that keeps
+        the subject visible).
     scale : float, optional
         OpenCV font scale (default from the image height: 0.6 at 1024 rows, at least 0.4).
 
@@ -213,10 +315,7 @@ def draw_legend(
     scale = _default_scale(h) if scale is None else scale
     thick, th, pitch, pad = _text_metrics(scale)
     x0, y0 = origin
-    fit = max(1, (h - y0 - 2 * pad + (pitch - th)) // pitch)
-    if len(names) > fit:
-        more = len(names) - fit + 1
-        names, colors = names[: fit - 1] + [f"+{more} more"], colors[: fit - 1]
+    names, colors = _fit_legend(names, colors, h, min(y0, _MARGIN), scale)
     bw, bh = _legend_box(names, scale)
     _lighten(out, x0, y0, min(w, x0 + bw), min(h, y0 + bh))
     for i, name in enumerate(names):

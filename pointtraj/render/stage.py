@@ -26,11 +26,19 @@ import numpy as np
 from ..atomic import write_text_atomic
 from ..camera import Camera, CameraRig
 from ..errors import FileFormatError, ValidationError
+from ..geometry import resolve_up
 from ..trajectories import Trajectories
 from ..workdir import WorkFolder, locked
 from .config import ORBIT, RenderConfig
 from .offscreen import TrajectoryRenderer
-from .overlay import draw_caption, draw_legend, draw_overlay, draw_scene, legend_image
+from .overlay import (
+    draw_caption,
+    draw_legend,
+    draw_overlay,
+    draw_scene,
+    legend_image,
+    legend_origin,
+)
 from .palette import UNLABELLED_COLOR, blend_colors, class_palette, label_colors
 from .scene import floor_grid, frame_geometry, orbit_cameras, plane_basis
 from .video import read_png, write_png, write_video
@@ -200,8 +208,9 @@ def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
         raise FileFormatError(
             inputs[-1], f"has {labels.shape[0]} labels, trajectories.npz has {M} trajectories"
         )
-    if capture is not None and (capture.path / "rig.toml").is_file():
-        inputs.append(capture.path / "rig.toml")
+    if capture is not None:
+        # rig.toml places the cameras; capture.toml's fps and up change captions and views.
+        inputs += [p for n in ("rig.toml", "capture.toml") if (p := capture.path / n).is_file()]
     label_set = None
     if capture is not None and capture.labels_path is not None:
         label_set = LabelSet.load(capture.labels_path)
@@ -255,13 +264,20 @@ class _Stage:
     grid: np.ndarray  # (S, 2, 3)
 
 
-def _stage(traj: Trajectories, rig: CameraRig | None, cfg: RenderConfig) -> _Stage:
-    # Up: the mean of the rig cameras' image-up directions (-y of each camera), else world +z.
-    up = np.array([0.0, 0.0, 1.0])
-    if rig is not None:
-        u = -rig.R[:, 1, :].mean(axis=0)
-        if np.linalg.norm(u) > 0.3:
-            up = u / np.linalg.norm(u)
+def _stage(
+    traj: Trajectories,
+    rig: CameraRig | None,
+    cfg: RenderConfig,
+    capture_up: np.ndarray | None = None,
+) -> _Stage:
+    """The orbit's centre, axis and distance and the floor grid, all from the scene's own
+    scale (a room or a 1 cm subject), about the up direction of ``cfg.up``, else
+    ``capture_up`` (capture.toml), else detected from ``rig`` (:func:`resolve_up`)."""
+    if cfg.up == "auto" and capture_up is not None:
+        up, how = np.asarray(capture_up, float), "capture.toml up"
+    else:
+        up, how = resolve_up(cfg.up, rig, "[render] up")
+    logger.info("render: up = (%.3f, %.3f, %.3f), from %s", *up, how)
     xyz = traj.xyz
     xyz = xyz[:: max(1, len(xyz) // 400_000)]
     xyz = xyz[np.isfinite(xyz).all(axis=1)].astype(np.float64)
@@ -269,7 +285,10 @@ def _stage(traj: Trajectories, rig: CameraRig | None, cfg: RenderConfig) -> _Sta
         raise ValidationError("the trajectory store has no finite positions")
     # Robust framing: the median point, and the radius holding 95% of the points (x 1.1).
     center = np.median(xyz, axis=0)
-    extent = max(1.1 * float(np.percentile(np.linalg.norm(xyz - center, axis=1), 95)), 0.1)
+    extent = 1.1 * float(np.percentile(np.linalg.norm(xyz - center, axis=1), 95))
+    if not extent > 1e-9:  # one point, or all at one place: a tenth of the rig's distance
+        far = np.linalg.norm(rig.C - center, axis=1) if rig is not None else np.zeros(0)
+        extent = 0.1 * float(np.median(far)) if len(far) and np.median(far) > 0 else 0.1
     if cfg.orbit_center is not None:
         center = np.asarray(cfg.orbit_center, float)
     w, h = cfg.size
@@ -304,17 +323,54 @@ def _orbit_camera(stage: _Stage, cfg: RenderConfig, t: int) -> Camera:
     )[0].with_name(ORBIT)
 
 
+#: Frames sampled to place the legend of an output.
+_LEGEND_SAMPLES = 16
+
+
+def _legend_origin(
+    traj: Trajectories,
+    frames: range,
+    names: list[str],
+    cfg: RenderConfig,
+    stage: _Stage | None,
+    rig: CameraRig | None,
+    kind: str,
+    name: str,
+) -> tuple[int, int]:
+    """Where one output's legend goes: the corner covering the fewest points drawn (the
+    subject), over up to :data:`_LEGEND_SAMPLES` frames of the range, the same in every frame
+    so that it does not jump in the video."""
+    if cfg.legend_corner != "auto":
+        size = cfg.size if name == ORBIT else rig[name].size
+        return legend_origin(size, names, cfg.legend_corner)
+    step = max(1, -(-len(frames) // _LEGEND_SAMPLES))
+    pixels = []
+    for t in frames[::step]:
+        cam = _orbit_camera(stage, cfg, t) if name == ORBIT else rig[name]
+        fs = traj.frame(t)
+        xyz = fs.xyz
+        if kind == "overlay" and name in traj.camera_names:
+            xyz = xyz[fs.visibility[:, traj.camera_names.index(name)] > 0.5]
+        proj = CameraRig([cam]).project(xyz)
+        pixels.append(proj.pixels[0][proj.in_image[0]])
+    size = cfg.size if name == ORBIT else rig[name].size
+    radius = cfg.overlay_radius if kind == "overlay" else cfg.point_size / 2
+    return legend_origin(
+        size, names, "auto", np.concatenate(pixels) if pixels else None, radius=radius
+    )
+
+
 def _settings(kind: str, name: str, scene: _Scene, cfg: RenderConfig) -> dict:
     """What the images of one output depend on; a change makes its frames stale."""
     inputs = [
         {"path": str(p.resolve()), "bytes": p.stat().st_size, "mtime_ns": p.stat().st_mtime_ns}
         for p in scene.inputs
     ]
-    keys = ["tail", "colors", "min_length", "unlabelled", "legend", "caption"]
+    keys = ["tail", "colors", "min_length", "unlabelled", "legend", "legend_corner", "caption"]
     if kind == "overlay":
         keys += ["overlay_radius"]
     else:
-        keys += ["engine", "tail_fade", "point_size", "line_width", "background", "floor"]
+        keys += ["engine", "tail_fade", "point_size", "line_width", "background", "floor", "up"]
         if name == ORBIT:
             keys += ["size"] + [
                 f.name for f in dataclasses.fields(cfg) if f.name.startswith("orbit_")
@@ -367,6 +423,7 @@ class _DrawJob:
     base_fps: float
     grid_color: np.ndarray  # (3,) uint8
     bg: np.ndarray  # (3,) uint8
+    legend_origins: dict[tuple[str, str], tuple[int, int]] = field(default_factory=dict)
 
 
 def _draw_frame(
@@ -377,7 +434,8 @@ def _draw_frame(
 
     def annotate(img: np.ndarray, label: str) -> np.ndarray:
         if cfg.legend:
-            img = draw_legend(img, list(job.legend_names), job.legend_colors)
+            origin = job.legend_origins.get((kind, name), (10, 10))
+            img = draw_legend(img, list(job.legend_names), job.legend_colors, origin=origin)
         if cfg.caption:
             img = draw_caption(img, f"{label}   frame {t}   {t / job.base_fps:.2f} s")
         return img
@@ -564,12 +622,20 @@ def render_work(
     legend_path = renders / "legend.png"
     write_png(legend_path, legend_image(legend_names, legend_colors))
 
-    stage = _stage(traj, rig, cfg) if cfg.views else None
+    stage = (
+        _stage(traj, rig, cfg, capture.up if capture is not None else None) if cfg.views else None
+    )
     # The floor grid: 16% of the way from the background to black (to white on dark ones).
     grid_color = blend_colors(bg[None], np.full(3, 255 if bg.mean() < 128 else 0), 0.16)[0]
     base_fps = capture.fps if capture is not None else traj.fps
     fps = cfg.fps or base_fps / cfg.stride
 
+    legend_origins = {}
+    if cfg.legend:
+        for kind, name in [("view", v) for v in cfg.views] + [("overlay", c) for c in overlay_cams]:
+            legend_origins[kind, name] = _legend_origin(
+                traj, frames, legend_names, cfg, stage, rig, kind, name
+            )
     job = _DrawJob(
         traj=traj,
         colors=colors,
@@ -582,6 +648,7 @@ def render_work(
         base_fps=float(base_fps),
         grid_color=grid_color,
         bg=bg,
+        legend_origins=legend_origins,
     )
     remote = executor is not None and not executor.local
 
