@@ -30,7 +30,14 @@ import numpy as np
 from .camera import CameraRig
 from .errors import ValidationError
 
-__all__ = ["CaptureVolume", "RigCoverage", "analyze_rig", "plot_coverage"]
+__all__ = [
+    "CaptureVolume",
+    "RigCoverage",
+    "analyze_rig",
+    "plot_coverage",
+    "format_length",
+    "format_volume",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -151,25 +158,80 @@ class RigCoverage:
 
     def report(self) -> str:
         """Several lines: the paper's two density figures by the nearest definitions
-        (``docs/rig_density.md``), then the other candidates and camera counts."""
+        (``docs/rig_density.md``), then the other candidates and camera counts.
+
+        Lengths, volumes and densities are in units that suit the rig's scale (a room in m³
+        and cm, a small-scale rig in cm³ or mm³ and mm; :func:`format_length`,
+        :func:`format_volume`); densities are per mm when the voxel is under 1 cm.
+        """
         s = self.summary()
+        mm = self.voxel < 0.01  # densities per mm (a small-scale rig), else per cm
+        unit, k2, k3 = ("mm", 1e-2, 1e-3) if mm else ("cm", 1.0, 1.0)
+        paper_centre = (
+            "(paper: > 60 pixels seeing a 1 cm cube = 0.6 px/mm^2)"
+            if mm
+            else "(paper: > 60 pixels seeing a 1 cm cube, which it writes px/cm^3)"
+        )
         return "\n".join(
             [
-                f"capture volume {s['volume_m3']:.2f} m^3, voxel {100 * self.voxel:.0f} cm",
-                f"mean pixel density   {s['global_px_per_cm3']:8.2f} px/cm^3  (paper: 6.4) = "
-                "pixels of all cameras whose rays enter the volume / volume",
-                f"centre pixel density {s['projected_best_centre_px_per_cm2']:8.2f} px/cm^2  "
-                "(paper: > 60 px/cm^3) = pixels of the best camera on a 1 cm x 1 cm patch at the "
-                "centre, fx fy (1 cm)^2 / d^2",
-                f"  other definitions (px/cm^2): summed over cameras "
-                f"{s['projected_sum_centre_px_per_cm2']:.0f} at the centre, "
-                f"{s['projected_sum_mean_px_per_cm2']:.0f} mean; best camera "
-                f"{s['projected_best_mean_px_per_cm2']:.1f} mean",
+                f"capture volume {format_volume(s['volume_m3'])}, voxel "
+                f"{format_length(self.voxel)}",
+                f"mean pixel density   {_g(k3 * s['global_px_per_cm3'])} px/{unit}^3  "
+                f"(paper: {_g(k3 * 6.4)} px/{unit}^3) = pixels of all cameras whose rays enter "
+                "the volume / volume",
+                f"centre pixel density {_g(k2 * s['projected_best_centre_px_per_cm2'])} "
+                f"px/{unit}^2  {paper_centre} = pixels of the best camera on a 1 {unit} x 1 "
+                f"{unit} patch at the centre, fx fy (1 {unit})^2 / d^2",
+                f"  other definitions (px/{unit}^2): summed over cameras "
+                f"{k2 * s['projected_sum_centre_px_per_cm2']:.4g} at the centre, "
+                f"{k2 * s['projected_sum_mean_px_per_cm2']:.4g} mean; best camera "
+                f"{k2 * s['projected_best_mean_px_per_cm2']:.4g} mean",
                 f"cameras seeing a voxel: {s['cameras_mean']:.1f} mean, {s['cameras_centre']} at "
                 f"the centre; seen by >= 2 / 5 / 10: {100 * s['fraction_seen_by_2']:.1f} / "
                 f"{100 * s['fraction_seen_by_5']:.1f} / {100 * s['fraction_seen_by_10']:.1f} %",
             ]
         )
+
+
+def _g(x: float) -> str:
+    """A density in a fixed-width field: 2 decimals, or 4 significant digits when tiny."""
+    return f"{x:8.2f}" if x == 0 or abs(x) >= 0.01 else f"{x:8.4g}"
+
+
+def _sig(x: float) -> str:
+    """3 significant digits, without an exponent from 100 up."""
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"
+
+
+def format_length(metres: float) -> str:
+    """A length in the unit that suits it: m from 1 m, cm from 1 cm, else mm (3 significant
+    digits).
+
+    Examples
+    --------
+    >>> format_length(2.5), format_length(0.05), format_length(0.0004)
+    ('2.5 m', '5 cm', '0.4 mm')
+    """
+    for unit, k in (("m", 1.0), ("cm", 1e-2)):
+        if abs(metres) >= k:
+            return f"{_sig(metres / k)} {unit}"
+    return f"{_sig(metres * 1e3)} mm"
+
+
+def format_volume(cubic_metres: float) -> str:
+    """A volume in the unit that suits it: m^3 from 0.1 m^3 (a 46 cm cube), cm^3 from
+    0.1 cm^3, else mm^3 (3 significant digits).
+
+    Examples
+    --------
+    >>> format_volume(17.67), format_volume(0.001), format_volume(2e-9)
+    ('17.7 m^3', '1000 cm^3', '2 mm^3')
+    """
+    for unit, k in (("m^3", 0.1), ("cm^3", 1e-7)):
+        if abs(cubic_metres) >= k:
+            scale = 1.0 if unit == "m^3" else 1e-6
+            return f"{_sig(cubic_metres / scale)} {unit}"
+    return f"{_sig(cubic_metres * 1e9)} mm^3"
 
 
 def analyze_rig(
@@ -215,6 +277,9 @@ def _global_density(rig: CameraRig, volume: CaptureVolume, step: int = 8) -> flo
     """Pixels (on a ``step`` grid, scaled) whose rays enter the volume, per cm³ of volume."""
     total = 0.0
     cx, cy, cz = volume.center
+    hx, hy = (volume.radius, volume.radius) if volume.radius is not None else volume.half_extent
+    sphere_c = np.array([cx, cy, cz + volume.height / 2])
+    sphere_r = float(np.sqrt(hx**2 + hy**2 + (volume.height / 2) ** 2))
     for i, cam in enumerate(rig):
         w, h = cam.size
         u, v = np.meshgrid(
@@ -222,10 +287,12 @@ def _global_density(rig: CameraRig, volume: CaptureVolume, step: int = 8) -> flo
         )
         pix = np.stack([u.ravel(), v.ravel()], axis=1)
         o, d = rig.subset([i]).rays(pix[None])
-        o, d = o[0], d[0]
-        # Sample along each ray and test membership of the volume.
-        ts = np.linspace(0.0, 8.0, 161)
-        p = o[:, None, :] + ts[None, :, None] * d[:, None, :]  # (n, S, 3)
+        o, d = o[0], d[0] / np.linalg.norm(d[0], axis=1, keepdims=True)
+        # Sample each ray where it crosses the volume's bounding sphere (160 steps across it,
+        # whatever the volume's size) and test membership of the volume.
+        t0, t1 = _sphere_span(o, d, sphere_c, sphere_r)  # (n,), (n,)
+        ts = t0[:, None] + (t1 - t0)[:, None] * np.linspace(0.0, 1.0, 161)[None]  # (n, S)
+        p = o[:, None, :] + ts[:, :, None] * d[:, None, :]  # (n, S, 3)
         if volume.radius is not None:
             inside = ((p[..., 0] - cx) ** 2 + (p[..., 1] - cy) ** 2 <= volume.radius**2) & (
                 (p[..., 2] >= cz) & (p[..., 2] <= cz + volume.height)
@@ -238,8 +305,23 @@ def _global_density(rig: CameraRig, volume: CaptureVolume, step: int = 8) -> flo
                 & (p[..., 2] >= cz)
                 & (p[..., 2] <= cz + volume.height)
             )
+        inside &= (t1 > t0)[:, None]  # rays that miss the sphere
         total += inside.any(axis=1).sum() * (w * h) / len(pix)
     return float(total / (volume.volume_m3 * 1e6))
+
+
+def _sphere_span(
+    o: np.ndarray, d: np.ndarray, c: np.ndarray, r: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where rays ``o + t d`` (unit ``d``, ``t >= 0``) are inside a sphere: ``[t0, t1]`` per
+    ray, (n,) each; ``t1 <= t0`` for a ray that misses it."""
+    oc = o - c  # (n, 3)
+    b = np.einsum("ij,ij->i", oc, d)  # (n,)
+    disc = b**2 - (np.einsum("ij,ij->i", oc, oc) - r**2)
+    root = np.sqrt(np.maximum(disc, 0.0))
+    t0 = np.maximum(-b - root, 0.0)
+    t1 = np.where(disc > 0, -b + root, 0.0)
+    return t0, np.maximum(t1, 0.0)
 
 
 def plot_coverage(

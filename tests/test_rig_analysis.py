@@ -56,3 +56,26 @@ def test_global_density_scales_with_pixel_count(tmp_path):
 def test_bad_voxel_size():
     with pytest.raises(ValidationError, match="voxel size"):
         analyze_rig(ring(2), voxel=0.0)
+
+
+def test_a_centimetre_rig_gives_the_scaled_figures_in_small_units():
+    """Regression: ``rig info`` printed "capture volume 0.00 m^3, voxel 0 cm" for a small rig,
+    and its mean density sampled rays every 5 cm over 0-8 m, missing a small volume (0 px).
+    A rig and volume scaled by 0.01 give the same counts, densities x 1e4 (per area) and x 1e6
+    (per volume), printed in cm^3 / mm and px/mm."""
+    big_rig = ring(6)
+    small_rig = CameraRig([Camera(c.name, c.K, c.R, 0.01 * c.C, c.size, c.dist) for c in big_rig])
+    big = analyze_rig(big_rig, CaptureVolume(radius=1.0, height=2.0), voxel=0.25)
+    small = analyze_rig(small_rig, CaptureVolume(radius=0.01, height=0.02), voxel=0.0025)
+    np.testing.assert_array_equal(small.count, big.count)
+    np.testing.assert_allclose(small.density_max, 1e4 * big.density_max, rtol=1e-6)
+    assert small.global_density == pytest.approx(1e6 * big.global_density, rel=0.05)
+    assert big.global_density > 0
+    text = small.report()
+    assert "capture volume 6.28 cm^3, voxel 2.5 mm" in text
+    assert "px/mm^3" in text and "px/mm^2" in text and "0.6 px/mm^2" in text
+    head = big.report().splitlines()
+    assert head[0] == "capture volume 6.28 m^3, voxel 25 cm"
+    # The centre figure is an area density; the paper's "> 60" is pixels seeing a 1 cm cube.
+    assert "px/cm^2  (paper: > 60 pixels seeing a 1 cm cube" in head[2]
+    assert "(paper: > 60 px/cm^3)" not in big.report()
