@@ -245,3 +245,78 @@ def test_zero_distortion_shortcut_equals_the_model_bit_for_bit():
     np.testing.assert_array_equal(got, model)
     assert np.isnan(got[1, :5]).all() and np.isnan(got[2, :5]).all()
     assert np.isfinite(got[3, :3]).all() and np.isnan(got[3, 3:6, 0]).all()
+
+
+# -- the up axis ---------------------------------------------------------------------------------
+def _moved(rig: CameraRig, Q: np.ndarray) -> CameraRig:
+    """The rig in a world frame rotated by ``Q`` (``X' = Q X``)."""
+    return CameraRig([Camera(c.name, c.K, c.R @ Q.T, Q @ c.C, c.size, c.dist) for c in rig])
+
+
+def _rolled(rig: CameraRig, deg: float) -> CameraRig:
+    """Every camera turned about its optical axis (a portrait mount for +-90)."""
+    a = np.radians(deg)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+    return CameraRig([Camera(c.name, c.K, Rz @ c.R, c.C, c.size, c.dist) for c in rig])
+
+
+Y_DOWN = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # world z -> -y (a camera's frame)
+
+
+def test_detect_up_on_rings_in_any_frame():
+    from helpers.rigs import ring_rig
+
+    from pointtraj.geometry import detect_up
+    from pointtraj.synth.presets import make_rig
+
+    ring = ring_rig(8, heights=(2.0, 1.6))  # looking down at (0, 0, 1)
+    for rig, expected in (
+        (ring, [0, 0, 1]),
+        (_moved(ring, Y_DOWN), [0, -1, 0]),  # a y-down world (caliscope's camera frame)
+        (_rolled(ring, 90), [0, 0, 1]),  # portrait cameras: the ring's plane, not image-up
+        (_moved(_rolled(ring, -90), Y_DOWN), [0, -1, 0]),
+    ):
+        up, how = detect_up(rig)
+        np.testing.assert_allclose(up, expected, atol=1e-9)
+        assert "plane of the 8 camera centres" in how
+    # paper69: two rings at different heights, not one plane: the cameras' mean image-up.
+    up, how = detect_up(_moved(make_rig("paper69"), Y_DOWN))
+    np.testing.assert_allclose(up, [0, -1, 0], atol=1e-9)
+    assert how.startswith("mean image-up")
+
+
+def test_detect_up_fallbacks():
+    from helpers.rigs import ring_rig
+
+    from pointtraj.geometry import detect_up
+
+    # Two cameras: no plane; their image-up vectors agree.
+    pair = _moved(ring_rig(angles=[0.0, 0.5]), Y_DOWN)
+    up, how = detect_up(pair)
+    assert up @ [0, -1, 0] > 0.99 and how.startswith("mean image-up")
+    # One camera upright, one upside down, not on a ring: no guess; +z, and the reason says so.
+    upright, upside_down = ring_rig(angles=[0.0]), _rolled(ring_rig(angles=[0.3]), 180)
+    up, how = detect_up(CameraRig([upright[0], upside_down[0].with_name("c1")]))
+    np.testing.assert_array_equal(up, [0, 0, 1])
+    assert "give no up direction" in how and "set up to choose" in how
+
+
+def test_parse_and_resolve_up():
+    from helpers.rigs import ring_rig
+
+    from pointtraj.geometry import parse_up, resolve_up
+
+    assert parse_up("auto") is None
+    np.testing.assert_array_equal(parse_up("-y"), [0, -1, 0])
+    np.testing.assert_array_equal(parse_up("Z"), [0, 0, 1])
+    np.testing.assert_allclose(parse_up([3, 0, 4]), [0.6, 0, 0.8])
+    for bad in ("up", [0, 0, 0], [1, 2], True, [np.nan, 0, 1]):
+        with pytest.raises(ValidationError, match=r"where: expected 'auto', one of \+x, -x"):
+            parse_up(bad, "where")
+    up, how = resolve_up("+x", ring_rig(4))
+    np.testing.assert_array_equal(up, [1, 0, 0])
+    assert how == "up = '+x'"
+    up, how = resolve_up("auto", None)
+    np.testing.assert_array_equal(up, [0, 0, 1])
+    up, _ = resolve_up("auto", _moved(ring_rig(6), Y_DOWN))
+    np.testing.assert_allclose(up, [0, -1, 0], atol=1e-9)

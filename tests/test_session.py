@@ -259,3 +259,50 @@ def test_real_caliscope_videos(tmp_path):
     assert not np.array_equal(seq[10], seq[0])
     frame = cap.iter_frame(56)
     assert all(img.shape == (720, 1280, 3) for img in frame.values())
+
+
+def test_implausible_video_fps_is_reported_and_can_be_overridden(tmp_path, caplog):
+    """Regression: a 0.2 fps video header was taken as is (captions said 35.00 s for frame 7).
+    It is reported with a warning naming the file and not used; capture.toml's fps overrides."""
+    from pointtraj.session import check_video_fps
+
+    save_rig_toml(small_rig(), tmp_path / "cap" / "rig.toml")
+    for c, name in enumerate(["left", "right"]):
+        write_video(tmp_path / "cap" / "videos" / f"{name}.mp4", T=5, fps=0.2, camera=c)
+    import cv2
+
+    probe = cv2.VideoCapture(str(tmp_path / "cap" / "videos" / "left.mp4"))
+    assert probe.get(cv2.CAP_PROP_FPS) == pytest.approx(0.2)  # the header really says 0.2
+    probe.release()
+    with caplog.at_level(logging.WARNING, logger="pointtraj.session"):
+        cap = Capture.open(tmp_path / "cap")
+    assert cap.fps == 30.0  # DEFAULT_FPS, not 0.2
+    text = caplog.text
+    assert "left.mp4: the video header says 0.2 fps, which is implausible" in text
+    assert "right.mp4" in text and "fps = ... in capture.toml" in text
+    caplog.clear()
+    (tmp_path / "cap" / "capture.toml").write_text("fps = 6.0\n")
+    with caplog.at_level(logging.WARNING, logger="pointtraj.session"):
+        assert Capture.open(tmp_path / "cap").fps == 6.0
+    assert "implausible" not in caplog.text  # the header is not consulted
+    # A plausible header is used; the other is reported.
+    (tmp_path / "cap" / "capture.toml").unlink()
+    write_video(tmp_path / "cap" / "videos" / "right.mp4", T=5, fps=24.0, camera=1)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="pointtraj.session"):
+        assert Capture.open(tmp_path / "cap").fps == pytest.approx(24.0)
+    assert "left.mp4: the video header says 0.2 fps" in caplog.text
+    assert check_video_fps(5000.0, "x.mp4") is None and check_video_fps(25.0, "x.mp4") == 25.0
+    assert check_video_fps(float("nan"), "x.mp4") is None
+
+
+def test_capture_toml_up(tmp_path):
+    make_capture(tmp_path / "cap")
+    assert Capture.open(tmp_path / "cap").up is None  # auto
+    (tmp_path / "cap" / "capture.toml").write_text('fps = 12.5\nup = "-y"\n')
+    np.testing.assert_array_equal(Capture.open(tmp_path / "cap").up, [0.0, -1.0, 0.0])
+    (tmp_path / "cap" / "capture.toml").write_text("up = [0, 0, 2]\n")
+    np.testing.assert_array_equal(Capture.open(tmp_path / "cap").up, [0.0, 0.0, 1.0])
+    (tmp_path / "cap" / "capture.toml").write_text('up = "sideways"\n')
+    with pytest.raises(FileFormatError, match=r"capture.toml: up: expected 'auto', one of \+x"):
+        Capture.open(tmp_path / "cap")
