@@ -380,6 +380,7 @@ def test_cli_writes_pngs_and_mp4_and_resumes(tiny_work):
         (["--frames", "three"], "expected A:B"),
         (["--size", "big"], "expected WIDTHxHEIGHT"),
         (["--tail", "-2"], "tail: must be non-negative"),
+        (["--up", "sideways"], "up: expected 'auto', one of +x, -x, +y, -y, +z, -z"),
     ],
 )
 def test_cli_errors_are_one_line(tiny_work, extra, message):

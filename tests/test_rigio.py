@@ -515,6 +515,7 @@ def test_cli_convert_and_show(tmp_path):
     res = runner.invoke(main, ["rig", "show", str(tmp_path / "m")])
     assert res.exit_code == 0, res.output
     assert "colmap, 3 cameras" in res.output and "cam_2" in res.output
+    assert "\nbaselines: nearest neighbour " in res.output and "\nup (" in res.output
     (tmp_path / "bad.toml").write_text(_minimal_toml(matrix=""))
     res = runner.invoke(main, ["rig", "show", str(tmp_path / "bad.toml")])
     assert res.exit_code == 1

@@ -43,6 +43,8 @@ def convert(src: str, dst: str, src_fmt: str | None, dst_fmt: str | None) -> Non
 )
 def show(path: str, src_fmt: str | None) -> None:
     """Print a summary of the rig in PATH: one line per camera."""
+    from ..geometry import detect_up
+    from ..rig_analysis import format_length
     from ..rigio import detect_format, load_rig
 
     fmt = src_fmt or detect_format(path)
@@ -63,9 +65,11 @@ def show(path: str, src_fmt: str | None) -> None:
         gaps = np.linalg.norm(cams.C[:, None] - cams.C[None], axis=-1)
         np.fill_diagonal(gaps, np.inf)
         click.echo(
-            f"baselines: nearest neighbour {np.min(gaps):.3f} m, "
-            f"largest {np.max(np.where(np.isinf(gaps), 0, gaps)):.3f} m"
+            f"baselines: nearest neighbour {format_length(np.min(gaps))}, "
+            f"largest {format_length(np.max(np.where(np.isinf(gaps), 0, gaps)))}"
         )
+    up, how = detect_up(cams)
+    click.echo(f"up ({', '.join(f'{round(float(v), 3) + 0.0:+.3f}' for v in up)}): {how}")
 
 
 @rig.command("info")
