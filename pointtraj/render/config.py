@@ -41,7 +41,8 @@ class RenderConfig:
     size : (int, int)
         ``(width, height)`` of the orbit view.
     point_size : float
-        Point diameter in pixels in the views.
+        Point diameter in pixels in the views (pixels, so the same at any scene scale: the
+        views' framing and clipping follow the scene's extent).
     line_width : float
         Tail width in pixels in the views.
     background : (int, int, int)

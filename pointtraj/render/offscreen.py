@@ -3,7 +3,8 @@
 ``open3d.visualization.rendering.OffscreenRenderer`` runs through Vulkan; on a machine without a
 GPU it runs on Mesa's llvmpipe, which needs the Debian packages ``libvulkan1
 mesa-vulkan-drivers``. Post-processing is off so label colours stay exact. Lens distortion is
-ignored (pinhole views). Only one renderer may be open at a time in a process: Filament aborts
+ignored (pinhole views). The clipping planes are set per view around the geometry drawn
+(:func:`clip_planes`), not Open3D's fixed 0.1 m near plane, so scenes of any scale render. Only one renderer may be open at a time in a process: Filament aborts
 the process when a second one is destroyed.
 """
 
