@@ -323,23 +323,53 @@ def parse_up(value: object, where: str = "up") -> np.ndarray | None:
     )
 
 
+def _normal_of(vectors: np.ndarray) -> np.ndarray | None:
+    """The direction perpendicular to unit ``vectors`` (C, 3) that span a plane, or None when
+    they do not (all nearly parallel: second eigenvalue of their scatter under 0.05, about a
+    13 degree spread; or not in one plane: smallest eigenvalue over 10 % of the second)."""
+    w, v = np.linalg.eigh(vectors.T @ vectors / len(vectors))  # ascending
+    if w[1] < 0.05 or w[0] > 0.1 * w[1]:
+        return None
+    return v[:, 0]
+
+
+def _signed(
+    n: np.ndarray, mean_up: np.ndarray, axes: np.ndarray, what: str
+) -> tuple[np.ndarray, str]:
+    """``n`` or ``-n``, whichever the cameras' mean image-up points along; where that is
+    ambiguous (cameras on their side), the side the optical axes tilt away from (cameras look
+    down a little); if they are level too, the side of world +z, and the reason says so."""
+    along = float(mean_up @ n)
+    if abs(along) >= 0.2:
+        return (n if along > 0 else -n), what
+    tilt = float(axes.mean(axis=0) @ n)
+    if abs(tilt) > 0.05:
+        return (n if tilt < 0 else -n), f"{what}, sign from the cameras looking down"
+    return (n if n[2] >= 0 else -n), (
+        f"{what} (sign ambiguous: the cameras are on their side and level; set up to choose)"
+    )
+
+
 def detect_up(rig: CameraRig) -> tuple[np.ndarray, str]:
     """The world's up direction, guessed from where the cameras are and how they are held.
 
-    Cameras are usually mounted upright (image rows horizontal) or, for portrait videos, on
-    their side; they stand around the scene, not above or below it. So:
+    Cameras are usually mounted level (image rows horizontal, whatever their pitch) and stand
+    around the scene, not above or below it. So, in order:
 
     1. If the camera centres lie near a plane with a 2-D spread (a ring or an arc around the
        scene: the smallest singular value of the centred positions is under 25 % of the
        middle one, which is over 20 % of the largest) and the cameras look across that plane
        (mean ``|n . d|`` under 0.7 for optical axes ``d``), up is the plane's normal ``n``.
-       Its sign is that of the cameras' mean image-up vector ``-R[1]`` along ``n``; where that
-       is ambiguous (cameras on their side), cameras are taken to look down a little: up is
-       opposite to the mean optical axis along ``n`` (and the side of world +z if they are
-       level, which the reason then says).
-    2. Otherwise, if the cameras' image-up vectors ``-R[1]`` agree (their mean has length of
-       at least 0.5), up is their mean.
-    3. Otherwise world +z, and the reason says the guess failed.
+    2. Else, if the cameras' image x axes ``R[0]`` span a plane (cameras facing different
+       ways), up is its normal: exact for level cameras at any pitch.
+    3. Else, if the cameras' image-up vectors ``-R[1]`` agree (their mean has a length of at
+       least 0.5), up is their mean (tilted by the cameras' mean pitch).
+    4. Else world +z, and the reason says the guess failed.
+
+    In 1 and 2 the sign is that of the cameras' mean image-up vector along the normal; where
+    that is ambiguous (cameras on their side, portrait-mounted), the cameras are taken to
+    look down a little; if they are level too, the side of world +z is taken and the reason
+    says the sign is ambiguous.
 
     Parameters
     ----------
@@ -354,31 +384,22 @@ def detect_up(rig: CameraRig) -> tuple[np.ndarray, str]:
         How it was found, for the log (``"plane of the 8 camera centres"``, ...).
     """
     R, C = np.asarray(rig.R, float), np.asarray(rig.C, float)
-    image_up = -R[:, 1, :]  # (C, 3) each camera's image-up direction in the world
-    mean_up = image_up.mean(axis=0)
+    mean_up = -R[:, 1, :].mean(axis=0)  # (3,) the cameras' mean image-up direction
     axes = R[:, 2, :]  # (C, 3) optical axes
     if len(C) >= 3:
         _, s, vt = np.linalg.svd(C - C.mean(axis=0), full_matrices=False)
         n = vt[2]
         planar = s[1] > 0.2 * s[0] and s[2] < 0.25 * s[1]
-        across = float(np.abs(axes @ n).mean()) < 0.7
-        if planar and across:
-            along = float(mean_up @ n)
-            if abs(along) < 0.2:  # cameras on their side: look at where the axes tilt
-                tilt = float(axes.mean(axis=0) @ n)
-                along = -tilt if abs(tilt) > 0.05 else 1.0
-                if abs(tilt) <= 0.05:
-                    n = n if n @ [0.0, 0.0, 1.0] >= 0 else -n
-                    return n, (
-                        f"plane of the {len(C)} camera centres (sign ambiguous: the cameras "
-                        "are on their side and level; set up to choose)"
-                    )
-            return (n if along >= 0 else -n), f"plane of the {len(C)} camera centres"
+        if planar and float(np.abs(axes @ n).mean()) < 0.7:
+            return _signed(n, mean_up, axes, f"plane of the {len(C)} camera centres")
+    n = _normal_of(R[:, 0, :])
+    if n is not None:
+        return _signed(n, mean_up, axes, f"normal of the {len(C)} cameras' image rows (level)")
     if np.linalg.norm(mean_up) >= _UP_AGREEMENT:
         return mean_up / np.linalg.norm(mean_up), f"mean image-up of the {len(C)} cameras"
     return np.array([0.0, 0.0, 1.0]), (
-        f"world +z: the {len(C)} cameras give no up direction (rolled different ways and not "
-        "on a ring); set up to choose"
+        f"world +z: the {len(C)} cameras give no up direction (facing one way and held "
+        "differently); set up to choose"
     )
 
 

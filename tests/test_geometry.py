@@ -279,10 +279,17 @@ def test_detect_up_on_rings_in_any_frame():
         up, how = detect_up(rig)
         np.testing.assert_allclose(up, expected, atol=1e-9)
         assert "plane of the 8 camera centres" in how
-    # paper69: two rings at different heights, not one plane: the cameras' mean image-up.
+    # paper69: two rings at different heights, not one plane: its cameras are level.
     up, how = detect_up(_moved(make_rig("paper69"), Y_DOWN))
     np.testing.assert_allclose(up, [0, -1, 0], atol=1e-9)
-    assert how.startswith("mean image-up")
+    assert how.startswith("normal of the 69 cameras' image rows")
+    # A frontal arc of 4 cameras looking 25 degrees down: their mean image-up leans towards
+    # the subject, the normal of their image rows does not.
+    arc = _moved(ring_rig(angles=np.radians([0, 20, 40, 60]), heights=(2.4,)), Y_DOWN)
+    up, how = detect_up(arc)
+    np.testing.assert_allclose(up, [0, -1, 0], atol=1e-9)
+    mean_up = -arc.R[:, 1].mean(axis=0)
+    assert np.degrees(np.arccos(mean_up @ up / np.linalg.norm(mean_up))) > 20
 
 
 def test_detect_up_fallbacks():
@@ -290,13 +297,18 @@ def test_detect_up_fallbacks():
 
     from pointtraj.geometry import detect_up
 
-    # Two cameras: no plane; their image-up vectors agree.
-    pair = _moved(ring_rig(angles=[0.0, 0.5]), Y_DOWN)
+    # Two cameras facing one way, both upright: their image-up vectors agree.
+    pair = _moved(ring_rig(angles=[0.0, 0.0], heights=(1.0, 1.5)), Y_DOWN)
     up, how = detect_up(pair)
     assert up @ [0, -1, 0] > 0.99 and how.startswith("mean image-up")
-    # One camera upright, one upside down, not on a ring: no guess; +z, and the reason says so.
-    upright, upside_down = ring_rig(angles=[0.0]), _rolled(ring_rig(angles=[0.3]), 180)
+    # One camera upright, one upside down, level: the up axis is known, its sign is not.
+    upright, upside_down = ring_rig(angles=[0.0]), _rolled(ring_rig(angles=[0.5]), 180)
     up, how = detect_up(CameraRig([upright[0], upside_down[0].with_name("c1")]))
+    np.testing.assert_allclose(up, [0, 0, 1], atol=1e-9)
+    assert "sign ambiguous" in how
+    # The same, both facing one way: no guess; +z, and the reason says so.
+    same_way = _rolled(ring_rig(angles=[0.0]), 180)[0].with_name("c1")
+    up, how = detect_up(CameraRig([upright[0], same_way]))
     np.testing.assert_array_equal(up, [0, 0, 1])
     assert "give no up direction" in how and "set up to choose" in how
 

@@ -277,7 +277,9 @@ def _stage(
         up, how = np.asarray(capture_up, float), "capture.toml up"
     else:
         up, how = resolve_up(cfg.up, rig, "[render] up")
-    logger.info("render: up = (%.3f, %.3f, %.3f), from %s", *up, how)
+    # A guess that failed (no direction, or no sign) is a warning: the grid may be wrong.
+    log = logger.warning if "set up to choose" in how else logger.info
+    log("render: up = (%.3f, %.3f, %.3f), from %s", *up, how)
     xyz = traj.xyz
     xyz = xyz[:: max(1, len(xyz) // 400_000)]
     xyz = xyz[np.isfinite(xyz).all(axis=1)].astype(np.float64)
