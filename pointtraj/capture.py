@@ -23,7 +23,14 @@ import numpy as np
 
 from .camera import CameraRig
 from .errors import FileFormatError, ValidationError
-from .session import VIDEO_EXTENSIONS, CameraMedia, Capture, check_media, check_video_fps
+from .session import (
+    VIDEO_EXTENSIONS,
+    CameraMedia,
+    Capture,
+    check_media,
+    check_video_fps,
+    save_capture_toml,
+)
 
 __all__ = ["CaptureMade", "make_capture", "media_by_camera"]
 
@@ -217,7 +224,6 @@ def make_capture(
     ValidationError
         ``out`` not empty, a bad ``fps``, ``up`` or ``mode``.
     """
-    from .config import save_toml
     from .geometry import parse_up, resolve_up
     from .labelset import LabelSet
     from .rigio import detect_format, load_rig
@@ -270,15 +276,14 @@ def make_capture(
     tmp.chmod(0o777 & ~umask)  # mkdtemp makes it private; a capture is an ordinary folder
     try:
         save_rig_toml(cams, tmp / "rig.toml")
-        doc: dict[str, object] = {}
-        if fps is not None:
-            doc["fps"] = float(fps)
-        if up_value is not None:
-            doc["up"] = up if isinstance(up, str) else [float(v) for v in up_value]
-        doc["source"] = rig_source if isinstance(rig, CameraRig) else str(rig)
-        if description:
-            doc["description"] = description
-        save_toml(tmp / "capture.toml", doc, comment="written by pointtraj capture")
+        save_capture_toml(
+            tmp,
+            fps=fps,
+            up=up,
+            source=rig_source if isinstance(rig, CameraRig) else str(rig),
+            description=description,
+            comment="written by pointtraj capture",
+        )
         written = [out / "rig.toml", out / "capture.toml"]
         if label_set is not None:
             label_set.save(tmp / "labels.toml")
@@ -305,7 +310,7 @@ def make_capture(
         finally:
             session_log.setLevel(level)
         if up_value is not None:
-            up_source = f"set (up = {doc['up']!r} in capture.toml)"
+            up_source = f"set (up = {up!r} in capture.toml)"
         if out.exists():
             out.rmdir()
         os.replace(tmp, out)

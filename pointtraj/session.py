@@ -38,6 +38,7 @@ __all__ = [
     "DEFAULT_FPS",
     "PLAUSIBLE_FPS",
     "check_video_fps",
+    "save_capture_toml",
     "CameraMedia",
     "check_media",
     "list_images",
@@ -345,7 +346,7 @@ class Capture:
         path = Path(path)
         path.mkdir(parents=True, exist_ok=True)
         save_rig_toml(rig, path / "rig.toml")
-        save_toml(path / "capture.toml", {"fps": float(fps), "image_format": image_format})
+        save_capture_toml(path, fps=fps, image_format=image_format)
         cap = cls(path, rig, None, 0, fps, True, image_format)
         for name in rig.names:
             cap._sizes[name] = rig[name].size
@@ -513,6 +514,62 @@ class Capture:
                 logger.warning("%s: %s", self.path, msg)
                 self._size_warned.add(name)
         self._sizes[name] = size
+
+
+def save_capture_toml(
+    capture: str | os.PathLike,
+    *,
+    fps: float | None = None,
+    image_format: str | None = None,
+    up: str | list[float] | None = None,
+    source: str | None = None,
+    description: str | None = None,
+    comment: str = "",
+) -> Path:
+    """Write ``<capture>/capture.toml`` (atomically) with the settings given; None is left out.
+
+    Parameters
+    ----------
+    capture : path-like
+        The capture folder.
+    fps : float, optional
+        Frame rate, positive.
+    image_format : {"jpg", "png"}, optional
+    up : str or 3 floats, optional
+        As :func:`pointtraj.geometry.parse_up` reads it (``"auto"`` is left out).
+    source, description : str, optional
+    comment : str
+        A comment at the top of the file.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    ValidationError
+        For a bad value (the file is not written).
+    """
+    from .geometry import parse_up
+
+    doc: dict[str, Any] = {}
+    if fps is not None:
+        if isinstance(fps, bool) or not np.isfinite(fps) or not fps > 0:
+            raise ValidationError(f"fps must be positive, got {fps!r}")
+        doc["fps"] = float(fps)
+    if image_format is not None:
+        if image_format not in ("jpg", "png"):
+            raise ValidationError(f"image_format must be 'jpg' or 'png', got {image_format!r}")
+        doc["image_format"] = image_format
+    if up is not None and parse_up(up, "up") is not None:
+        doc["up"] = up if isinstance(up, str) else [float(v) for v in up]
+    for key, value in (("source", source), ("description", description)):
+        if value:
+            doc[key] = str(value)
+    file = Path(capture) / "capture.toml"
+    save_toml(file, doc, comment=comment)
+    return file
 
 
 def _read_capture_toml(path: Path) -> dict[str, Any]:
