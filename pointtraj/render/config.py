@@ -99,8 +99,8 @@ class RenderConfig:
     legend_corner : {"auto", "top-left", "top-right", "bottom-right", "bottom-left"}
         Where the legend goes. ``"auto"``: per view or overlay, the corner (of top-left,
         top-right, bottom-right) whose legend box covers the fewest of the points drawn,
-        over up to 16 frames of the range, so that it does not hide the subject (a person
-        filling a portrait video); the same corner in every frame.
+        over up to 16 frames spread over the store's frames, so that it does not hide the
+        subject (a person filling a portrait video); the same corner in every frame.
     caption : bool
         Write the view name and frame number at the bottom-left of each image.
     """

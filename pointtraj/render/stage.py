@@ -331,7 +331,6 @@ _LEGEND_SAMPLES = 16
 
 def _legend_origin(
     traj: Trajectories,
-    frames: range,
     names: list[str],
     cfg: RenderConfig,
     stage: _Stage | None,
@@ -340,14 +339,15 @@ def _legend_origin(
     name: str,
 ) -> tuple[int, int]:
     """Where one output's legend goes: the corner covering the fewest points drawn (the
-    subject), over up to :data:`_LEGEND_SAMPLES` frames of the range, the same in every frame
-    so that it does not jump in the video."""
+    subject), over up to :data:`_LEGEND_SAMPLES` frames spread over the store's frames (not the
+    range rendered, so that runs over different ranges agree), the same in every frame so that
+    it does not jump in the video."""
     if cfg.legend_corner != "auto":
         size = cfg.size if name == ORBIT else rig[name].size
         return legend_origin(size, names, cfg.legend_corner)
-    step = max(1, -(-len(frames) // _LEGEND_SAMPLES))
+    alive = range(int(traj.first_frame.min()), int(traj.last_frame.max()) + 1)
     pixels = []
-    for t in frames[::step]:
+    for t in alive[:: max(1, -(-len(alive) // _LEGEND_SAMPLES))]:
         cam = _orbit_camera(stage, cfg, t) if name == ORBIT else rig[name]
         fs = traj.frame(t)
         xyz = fs.xyz
@@ -636,7 +636,7 @@ def render_work(
     if cfg.legend:
         for kind, name in [("view", v) for v in cfg.views] + [("overlay", c) for c in overlay_cams]:
             legend_origins[kind, name] = _legend_origin(
-                traj, frames, legend_names, cfg, stage, rig, kind, name
+                traj, legend_names, cfg, stage, rig, kind, name
             )
     job = _DrawJob(
         traj=traj,
