@@ -100,7 +100,7 @@ def people_section(
     if n > 1:
         lines += [
             "",
-            "The label accuracy and the studies above pool the people (a class is a body part "
+            "The label accuracy and the other studies pool the people (a class is a body part "
             "of anyone); the person ids are this section's.",
         ]
     return Section("People", "\n".join(lines))
