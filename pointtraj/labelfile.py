@@ -36,6 +36,9 @@ class TrajectoryLabels:
         The L3D pooling labelled.
     params : dict
         The labelling parameters used.
+    instance : (M,) int64 ndarray or None
+        Person id per trajectory (0 the largest person; -1: on no person), from
+        :func:`pointtraj.instances.assign_instances`; None in files written before instances.
     """
 
     labels: np.ndarray
@@ -45,6 +48,7 @@ class TrajectoryLabels:
     energy: np.ndarray = field(default_factory=lambda: np.zeros(0))
     pooling: str = "view"
     params: dict[str, Any] = field(default_factory=dict)
+    instance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.class_names = tuple(str(n) for n in self.class_names)
@@ -57,6 +61,12 @@ class TrajectoryLabels:
             arr = getattr(self, name)
             if arr.shape != (M,):
                 raise ValidationError(f"{name}: expected shape ({M},), got {arr.shape}")
+        if self.instance is not None:
+            self.instance = np.asarray(self.instance, np.int64)
+            if self.instance.shape != (M,):
+                raise ValidationError(f"instance: expected shape ({M},), got {self.instance.shape}")
+            if M and self.instance.min() < -1:
+                raise ValidationError("instance: ids must be >= -1 (-1: on no person)")
         K = len(self.class_names)
         if M and (self.labels.min() < -1 or self.labels.max() >= K):
             raise ValidationError(f"labels: must lie in [-1, {K}), the {K} classes")
@@ -99,15 +109,23 @@ def save_labels(
         energy=labels.energy,
         pooling=np.array(labels.pooling),
         params=np.array(json.dumps(labels.params, sort_keys=True)),
+        **({} if labels.instance is None else {"instance": labels.instance}),
     )
     M = len(labels)
     ff = [""] * M if first_frame is None else np.asarray(first_frame).tolist()
     ln = [""] * M if lengths is None else np.asarray(lengths).tolist()
-    lines = ["track_id,label,label_name,confidence,first_frame,length"]
+    inst = [-1] * M if labels.instance is None else labels.instance.tolist()
+    lines = ["track_id,label,label_name,confidence,first_frame,length,instance"]
     lines += [
-        f"{m},{lab},{name},{c:.4f},{f},{n}"
-        for m, lab, name, c, f, n in zip(
-            range(M), labels.labels.tolist(), labels.names(), labels.confidence.tolist(), ff, ln
+        f"{m},{lab},{name},{c:.4f},{f},{n},{i}"
+        for m, lab, name, c, f, n, i in zip(
+            range(M),
+            labels.labels.tolist(),
+            labels.names(),
+            labels.confidence.tolist(),
+            ff,
+            ln,
+            inst,
         )
     ]
     write_text_atomic(path.with_suffix(".csv"), "\n".join(lines) + "\n")
@@ -145,6 +163,7 @@ def load_labels(path: str | os.PathLike) -> TrajectoryLabels:
             energy=arrays.get("energy", np.zeros(0)),
             pooling=str(arrays.get("pooling", "view")),
             params=params,
+            instance=arrays.get("instance"),
         )
     except (ValidationError, json.JSONDecodeError) as exc:
         raise FileFormatError(path, str(exc)) from None

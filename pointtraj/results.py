@@ -69,19 +69,33 @@ class Result:
             return self.semantic_map.argmax_labels()
         return np.full(self.trajectories.num_trajectories, -1, np.int64)
 
+    @property
+    def instance(self) -> np.ndarray | None:
+        """(M,) int64 person id per trajectory (-1: on no person), or None without one."""
+        return None if self.labels is None else self.labels.instance
+
     def pointcloud(self, frame: int, color_by: str = "label") -> o3d.t.geometry.PointCloud:
         """Frame ``frame`` as an ``open3d.t.geometry.PointCloud``.
 
         Attributes: ``positions``, ``colors`` (the class colour with ``color_by="label"`` and
-        known colours, else the image colour), ``visibility`` (N, C), ``track_id`` (N, 1) and
-        ``label`` (N, 1) int32 (-1: unlabelled).
+        known colours, a colour per person with ``color_by="instance"`` and person ids, else
+        the image colour), ``visibility`` (N, C), ``track_id`` (N, 1), ``label`` (N, 1) int32
+        (-1: unlabelled) and, with person ids, ``instance`` (N, 1) int32 (-1: no person).
         """
+        from .render.palette import label_colors
+
         colors = None
         if color_by == "label" and self.class_colors is not None:
-            from .render.palette import label_colors
-
             colors = label_colors(self.label, self.class_colors)
-        return self.trajectories.to_pointcloud(int(frame), labels=self.label, colors=colors)
+        elif color_by == "instance" and self.instance is not None:
+            from .render.palette import person_palette
+
+            colors = label_colors(
+                self.instance, person_palette(int(self.instance.max(initial=-1)) + 1)
+            )
+        return self.trajectories.to_pointcloud(
+            int(frame), labels=self.label, colors=colors, instances=self.instance
+        )
 
 
 def load(work: str | os.PathLike) -> Result:

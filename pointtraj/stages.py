@@ -33,6 +33,7 @@ import numpy as np
 
 from .affinity import AffinityConfig
 from .errors import FileFormatError, ValidationError
+from .instances import InstanceConfig
 from .labeling import LabelingConfig
 from .semantics.semantic_map import SemanticsConfig
 from .workdir import WorkFolder, parse_frames
@@ -147,11 +148,14 @@ class LabelStageConfig(LabelingConfig):
     pooling : str
         Which L3D of ``semantic_map.npz`` to label (its poolings; the paper's is ``view``).
     write_clouds : bool
-        Rewrite ``clouds/<frame>.ply`` with a ``label`` attribute.
+        Rewrite ``clouds/<frame>.ply`` with a ``label`` attribute (and ``instance``).
+    instances : InstanceConfig
+        People as instances (table ``[label.instances]``, :mod:`pointtraj.instances`).
     """
 
     pooling: str = "view"
     write_clouds: bool = True
+    instances: InstanceConfig = field(default_factory=InstanceConfig)
 
     def labeling_config(self) -> LabelingConfig:
         """The plain :class:`LabelingConfig` part."""
@@ -500,6 +504,29 @@ def _check_capture_classes(wf: WorkFolder, path: Path, class_names: tuple[str, .
         check_class_names(labels_toml, LabelSet.load(labels_toml).names, path, class_names)
 
 
+def _instances(wf: WorkFolder, cfg: InstanceConfig, labels, smap, graph) -> np.ndarray | None:
+    """A person id per trajectory (:func:`pointtraj.instances.assign_instances`), or None."""
+    from .instances import assign_instances, person_classes
+    from .labelset import LabelSet
+
+    if not cfg.enabled:
+        return None
+    capture = wf.capture_path()
+    toml = None if capture is None else capture / "labels.toml"
+    kinds = LabelSet.load(toml).kinds if toml is not None and toml.is_file() else None
+    people = person_classes(smap.class_names, kinds)
+    instance = assign_instances(
+        labels, people, graph.row, graph.col, graph.weight, smap.person_votes, cfg
+    )
+    logger.info(
+        "instances: %d people (%d trajectories on them; person masks: %s)",
+        int(instance.max(initial=-1)) + 1,
+        int((instance >= 0).sum()),
+        f"{len(smap.person_votes)} votes" if len(smap.person_votes) else "none",
+    )
+    return instance
+
+
 def label_work(
     work: str | os.PathLike,
     config: LabelStageConfig | None = None,
@@ -578,6 +605,7 @@ def _label_locked(
         energy=np.asarray(res.energy, np.float64),
         pooling=cfg.pooling,
         params=dataclasses.asdict(lab_cfg),
+        instance=_instances(wf, cfg.instances, res.labels, smap, graph),
     )
     # The clouds and labels.npz are one unit: the clouds first, labels.npz last. While the
     # clouds are rewritten a pending mark says so; a run killed then leaves it behind, and the
@@ -589,7 +617,13 @@ def _label_locked(
         # the clouds keep the visibility form the reconstruction wrote them in
         form = (wf.run_identity().get("reconstruct") or {}).get("cloud_visibility", "full")
         for i, t in enumerate(frames):
-            trajectories.write_frame_ply(t, wf.cloud(t), visibility_form=form, labels=result.labels)
+            trajectories.write_frame_ply(
+                t,
+                wf.cloud(t),
+                visibility_form=form,
+                labels=result.labels,
+                instances=result.instance,
+            )
             _report(progress, "label: clouds", i + 1, len(frames))
     save_labels(result, wf.labels, trajectories.first_frame, trajectories.lengths)
     wf.labels_pending.unlink(missing_ok=True)

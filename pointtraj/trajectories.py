@@ -96,6 +96,7 @@ def frame_pointcloud(
     track_id: np.ndarray,
     label: np.ndarray | None = None,
     visibility_form: str = "full",
+    instance: np.ndarray | None = None,
 ) -> o3d.t.geometry.PointCloud:
     """One frame's points as an Open3D point cloud with pointtraj's attributes.
 
@@ -111,6 +112,8 @@ def frame_pointcloud(
         How ``visibility`` is kept (:data:`CLOUD_VISIBILITY`): (N, C) float32 probabilities
         (the default, for Open3D users), (N, C) uint8 as the store quantises it, or not at all
         (:func:`write_cloud_ply` then writes the observed views, given ``views``).
+    instance : (N,) int ndarray, optional
+        Person id (-1: none).
 
     Returns
     -------
@@ -118,7 +121,7 @@ def frame_pointcloud(
         ``positions`` (N, 3) float32, ``colors`` (N, 3) float32 in [0, 1], ``visibility``
         (N, C) float32 or uint8 (none in the sparse form), ``num_views`` (N, 1) uint8
         (:func:`view_counts`), ``verified`` (N, 1) uint8 (1 where ``num_views >= 3``),
-        ``track_id`` (N, 1) int64 and ``label`` (N, 1) int32.
+        ``track_id`` (N, 1) int64, ``label`` (N, 1) int32 and ``instance`` (N, 1) int32.
     """
     import open3d as o3d
 
@@ -137,6 +140,8 @@ def frame_pointcloud(
     pcd.point.track_id = o3d.core.Tensor(np.asarray(track_id, np.int64)[:, None])
     if label is not None:
         pcd.point.label = o3d.core.Tensor(np.asarray(label, np.int32)[:, None])
+    if instance is not None:
+        pcd.point.instance = o3d.core.Tensor(np.asarray(instance, np.int32)[:, None])
     return pcd
 
 
@@ -154,7 +159,8 @@ def load_cloud(path: str | os.PathLike) -> dict[str, np.ndarray]:
         PLY's ``visibility_0 .. visibility_{C-1}`` restacked, dequantised where they are
         uint8; in the sparse form the observed views, 0 elsewhere: every form of
         :data:`CLOUD_VISIBILITY`), ``track_id`` (N,) int64, and,
-        where present, ``num_views`` (N,) uint8, ``verified`` (N,) bool and ``label`` (N,) int32.
+        where present, ``num_views`` (N,) uint8, ``verified`` (N,) bool, ``label`` (N,) int32
+        and ``instance`` (N,) int32.
 
     Raises
     ------
@@ -203,6 +209,8 @@ def load_cloud(path: str | os.PathLike) -> dict[str, np.ndarray]:
         out["verified"] = attrs["verified"].reshape(-1).astype(bool)
     if "label" in attrs:
         out["label"] = attrs["label"].reshape(-1).astype(np.int32)
+    if "instance" in attrs:
+        out["instance"] = attrs["instance"].reshape(-1).astype(np.int32)
     return out
 
 
@@ -699,11 +707,12 @@ class Trajectories:
         labels: np.ndarray | None = None,
         colors: np.ndarray | None = None,
         visibility_form: str = "full",
+        instances: np.ndarray | None = None,
     ) -> o3d.t.geometry.PointCloud:
         """Frame ``t`` as an ``open3d.t.geometry.PointCloud``.
 
         Attributes as :func:`frame_pointcloud` gives them (``label`` when ``labels`` (M,) is
-        given).
+        given, ``instance`` when ``instances`` (M,) is).
 
         Parameters
         ----------
@@ -714,6 +723,8 @@ class Trajectories:
             A colour per trajectory, overriding the per-point colours (e.g. label colours).
         visibility_form : {"full", "uint8", "sparse"}
             See :func:`frame_pointcloud`.
+        instances : (M,) int ndarray, optional
+            A person id per trajectory (-1: none).
         """
         fs = self.frame(t)
         col = self.color[fs.rows] if colors is None else np.asarray(colors, np.uint8)[fs.track_id]
@@ -725,8 +736,16 @@ class Trajectories:
                     f"labels: expected shape ({self.num_trajectories},), got {lab.shape}"
                 )
             lab = lab[fs.track_id]
+        ins = None
+        if instances is not None:
+            ins = np.asarray(instances, dtype=np.int32)
+            if ins.shape != (self.num_trajectories,):
+                raise ValidationError(
+                    f"instances: expected shape ({self.num_trajectories},), got {ins.shape}"
+                )
+            ins = ins[fs.track_id]
         return frame_pointcloud(
-            fs.xyz, col, self.visibility[fs.rows], fs.track_id, lab, visibility_form
+            fs.xyz, col, self.visibility[fs.rows], fs.track_id, lab, visibility_form, ins
         )
 
     def write_frame_ply(

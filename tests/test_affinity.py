@@ -350,12 +350,12 @@ def test_cli_affinity_and_label(tmp_path):
     assert np.all(np.diff(energy) <= 1e-9)
     assert (labels == body).mean() > 0.95 > (dominant == body).mean()
     lines = (tmp_path / "labels.csv").read_text().splitlines()
-    assert lines[0] == "track_id,label,label_name,confidence,first_frame,length"
+    assert lines[0] == "track_id,label,label_name,confidence,first_frame,length,instance"
     assert len(lines) == M + 1
     import open3d as o3d
 
     pcd = o3d.t.io.read_point_cloud(str(tmp_path / "clouds" / "000000.ply"))
-    assert "label" in pcd.point
+    assert "label" in pcd.point and "instance" in pcd.point
     # user mistakes are one-line errors
     res = runner.invoke(main, ["label", str(tmp_path), "--pooling", "average"])
     assert res.exit_code != 0 and "average" in res.output

@@ -270,6 +270,45 @@ def test_render_work_can_hide_unlabelled(tiny_work, tmp_path):
         render_work(grey, dataclasses.replace(cfg, colors="grey"))
 
 
+def test_render_work_colours_by_person(tiny_work):
+    """color_by = "instance": one colour per person id of labels.npz, grey for no person; a
+    labels.npz without person ids is a one-line error."""
+    from pointtraj.errors import FileFormatError
+    from pointtraj.render.palette import person_palette
+
+    cfg = RenderConfig(
+        engine="opencv", views=("cam0",), frames=(3, 4), tail=0, overlays=False, video=False,
+        legend=False, caption=False, floor=False, color_by="instance",
+    )  # fmt: skip
+    with pytest.raises(FileFormatError, match="has no instance"):
+        render_work(tiny_work, cfg)
+    with np.load(tiny_work / "labels.npz") as z:
+        lab = z["labels"]
+    # the red cluster is two people (split by trajectory parity), the blue one nobody
+    person = np.where(lab == 0, np.arange(len(lab)) % 2, -1)
+    np.savez(
+        tiny_work / "labels.npz",
+        labels=lab,
+        class_names=np.array(["red_thing", "blue_thing"]),
+        instance=person,
+    )
+    res = render_work(tiny_work, cfg)
+    assert res.classes == ["person 0", "person 1", "no person"]
+    img = read_png(tiny_work / "renders" / "views" / "cam0" / "000003.png")
+    tr = Trajectories.load(tiny_work / "trajectories.npz")
+    fs = tr.frame(3)
+    cam = Capture.open(tiny_work.parent / "cap").rig["cam0"]
+    px = np.rint(cam.project(fs.xyz)[0]).astype(int)
+    got = img[px[:, 1], px[:, 0]]
+    colours = person_palette(2)
+    for p, col in ((0, colours[0]), (1, colours[1]), (-1, (128, 128, 128))):
+        sel = person[fs.track_id] == p
+        assert sel.any()
+        assert np.mean(np.all(got[sel] == col, axis=1)) > 0.6, p
+    with pytest.raises(ValidationError, match="color_by"):
+        RenderConfig(color_by="person")
+
+
 def test_render_work_orbit_overlay_and_semantic_map_fallback(tmp_path):
     from pointtraj.semantics.semantic_map import SemanticMap
 

@@ -277,3 +277,26 @@ def test_quantize_visibility():
     q = quantize_visibility(v)
     np.testing.assert_array_equal(q, [0, 255, 128, 0, 255, 0])
     np.testing.assert_allclose(dequantize_visibility(q)[:2], [0.0, 1.0])
+
+
+def test_load_cloud_round_trips_the_instance(store, tmp_path):
+    """The int32 ``instance`` attribute (person id, -1 none) reads back through load_cloud,
+    in every visibility form; a cloud written without it has none."""
+    from pointtraj.trajectories import load_cloud
+
+    tr = store[0]
+    labels = np.arange(tr.num_trajectories, dtype=np.int64) % 5
+    instances = np.arange(tr.num_trajectories, dtype=np.int64) % 3 - 1  # -1, 0, 1, ...
+    t = 6
+    fs = tr.frame(t)
+    for form in ("full", "uint8", "sparse"):
+        path = tmp_path / f"{form}.ply"
+        tr.write_frame_ply(t, path, visibility_form=form, labels=labels, instances=instances)
+        cloud = load_cloud(path)
+        assert cloud["instance"].dtype == np.int32
+        np.testing.assert_array_equal(cloud["instance"], instances[fs.track_id])
+        np.testing.assert_array_equal(cloud["label"], labels[fs.track_id])
+    tr.write_frame_ply(t, tmp_path / "plain.ply", labels=labels)
+    assert "instance" not in load_cloud(tmp_path / "plain.ply")
+    with pytest.raises(ValidationError, match="instances"):
+        tr.to_pointcloud(t, instances=np.zeros(2))

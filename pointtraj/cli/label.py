@@ -35,7 +35,13 @@ def label(work: Path, no_clouds: bool, config_path: Path | None, **options) -> N
     with cli_errors(work), progress_bars() as bars:
         res = label_work(work, cfg, progress=bars)
     changed = int((res.labels != res.argmax).sum())
+    people = ""
+    if res.instance is not None:
+        people = (
+            f", {int(res.instance.max(initial=-1)) + 1} people "
+            f"({int((res.instance >= 0).sum())} trajectories)"
+        )
     click.echo(
-        f"labelled {len(res)} trajectories ({changed} changed from argmax L3D), energy "
+        f"labelled {len(res)} trajectories ({changed} changed from argmax L3D){people}, energy "
         f"{res.energy[0]:.6g} -> {res.energy[-1]:.6g} -> {work / 'labels.npz'}"
     )

@@ -69,6 +69,11 @@ def parse_size(text: str) -> tuple[int, int]:
     type=click.Choice(["auto", "labels", "semantic_map", "grey"]),
     help="Colour source (default auto: labels.npz, else semantic_map.npz argmax).",
 )
+@click.option(
+    "--color-by",
+    type=click.Choice(["label", "instance"]),
+    help="Colour by class (default) or by person (labels.npz instance, one colour per person).",
+)
 @click.option("--fps", type=float, help="MP4 frame rate (default the capture's, real time).")
 @click.option(
     "--up",

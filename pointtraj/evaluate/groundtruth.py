@@ -18,11 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ValidationError
 from ..trajectories import Trajectories
 
 __all__ = [
     "has_ground_truth",
     "true_labels",
+    "true_instances",
     "voted_labels",
     "surface_distance",
     "frame_surface_errors",
@@ -42,8 +44,9 @@ def voted_labels(
     trajectories: Trajectories,
     min_visibility: float = 0.5,
     progress: Callable[[int], None] | None = None,
+    maps: str = "labels",
 ) -> np.ndarray:
-    """Majority ground-truth label at each trajectory's visible projections.
+    """Majority ground-truth label (or instance) at each trajectory's visible projections.
 
     Parameters
     ----------
@@ -55,19 +58,30 @@ def voted_labels(
         A projection votes where the trajectory's visibility in that camera exceeds this.
     progress : callable, optional
         Called with 1 after each frame.
+    maps : {"labels", "instances"}
+        Vote with the label maps (classes) or the instance maps (figure / object ids).
 
     Returns
     -------
     (M,) int64 ndarray
-        Class index; -1 where the majority is the background, -2 where no camera votes.
+        Class index (instance id); -1 where the majority is the background, -2 where no camera
+        votes.
     """
     from ..npzfile import load_npz
     from ..session import Capture
-    from ..synth.groundtruth import load_label_map
+    from ..synth.groundtruth import load_instance_map, load_label_map
 
     capture = Path(capture)
     rig = Capture.open(capture).rig.subset(trajectories.camera_names)
-    K = int(load_npz(capture / "gt" / "points.npz", ["class_names"])["class_names"].shape[0])
+    points = load_npz(capture / "gt" / "points.npz", ["class_names", "instance"])
+    if maps == "labels":
+        K = int(points["class_names"].shape[0])
+        load_map = load_label_map
+    elif maps == "instances":
+        K = int(points["instance"].max(initial=-1)) + 1
+        load_map = load_instance_map
+    else:
+        raise ValidationError(f"maps: 'labels' or 'instances', got {maps!r}")
     votes = np.zeros((trajectories.num_trajectories, K + 1))  # column 0: background
     for t in range(trajectories.num_frames):
         fs = trajectories.frame(t)
@@ -77,7 +91,7 @@ def voted_labels(
                 ok = proj.in_image[c] & (fs.visibility[:, c] > min_visibility)  # (N,)
                 if not ok.any():
                     continue
-                lm = load_label_map(capture, name, t)  # (H, W) int, -1 background
+                lm = load_map(capture, name, t)  # (H, W) int, -1 background
                 px = np.rint(proj.pixels[c][ok]).astype(np.int64)  # (N', 2)
                 u = px[:, 0].clip(0, lm.shape[1] - 1)
                 v = px[:, 1].clip(0, lm.shape[0] - 1)
@@ -125,6 +139,47 @@ def true_labels(
         ):
             return gt.label[gt.segments()[0]].astype(np.int64), "ground truth"
     return voted_labels(capture, trajectories, progress=progress), "voted"
+
+
+def true_instances(
+    capture: str | os.PathLike,
+    trajectories: Trajectories,
+    progress: Callable[[int], None] | None = None,
+    truth: tuple[np.ndarray, str] | None = None,
+) -> tuple[np.ndarray, str]:
+    """The ground-truth person of every trajectory.
+
+    Parameters
+    ----------
+    capture : path-like
+        A synthetic capture.
+    trajectories : Trajectories
+    progress : callable, optional
+        Per frame, for :func:`voted_labels`.
+    truth : (labels, source), optional
+        :func:`true_labels` of the same store, when the caller has it already.
+
+    Returns
+    -------
+    instance : (M,) int64 ndarray
+        The figure's instance id of trajectories on a figure (a body-part class); -1 elsewhere
+        (background, objects, never seen).
+    source : {"ground truth", "voted"}
+        As :func:`true_labels`: exact for the capture's ground-truth trajectories, else the
+        majority of the instance maps (``gt/instances``) at the visible projections.
+    """
+    from ..labelset import LabelSet
+    from ..synth.groundtruth import load_ground_truth
+
+    gt = load_ground_truth(capture)
+    labels, source = truth or true_labels(capture, trajectories, progress=progress)
+    kinds = np.array(LabelSet.load(Path(capture) / "labels.toml").kinds)
+    if source == "ground truth":
+        instance = gt.instance[gt.segments()[0]].astype(np.int64)
+    else:
+        instance = voted_labels(capture, trajectories, progress=progress, maps="instances")
+    on_figure = (labels >= 0) & (kinds[np.maximum(labels, 0)] == "body")
+    return np.where(on_figure & (instance >= 0), instance, -1), source
 
 
 def _backproject(cam, pixels: np.ndarray, depth: np.ndarray) -> np.ndarray:

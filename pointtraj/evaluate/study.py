@@ -716,6 +716,10 @@ def evaluate_work(
         notes.append(
             "The capture has no ground truth (a real capture): ground-truth metrics skipped."
         )
+    if labels is not None:  # people as instances (pointtraj.evaluate.people)
+        section = _people(cap, traj, labels, (truth, source) if gt else None, metrics)
+        if section is not None:
+            sections.append(section)
     if gt:
         sections.append(_views_section(cap, traj, metrics, progress))
     if smap is not None:
@@ -769,6 +773,20 @@ def evaluate_work(
     write_report(folder, title or f"pointtraj report: {wf.path.name}", sections, metrics)
     logger.info("wrote %s", folder / "index.md")
     return metrics
+
+
+def _people(cap, traj, labels, truth, metrics: dict) -> Section | None:
+    """The "People" section (:func:`pointtraj.evaluate.people.people_section`)."""
+    from ..instances import person_classes
+    from ..labelset import LabelSet
+    from .groundtruth import true_instances
+    from .people import people_section
+
+    toml = Path(cap) / "labels.toml"
+    kinds = LabelSet.load(toml).kinds if toml.is_file() else None
+    people = person_classes(labels.class_names, kinds)
+    persons = None if truth is None else true_instances(cap, traj, truth=truth)[0]
+    return people_section(labels, people, persons, metrics)
 
 
 def headline(metrics: dict[str, Any]) -> list[str]:

@@ -88,6 +88,10 @@ class RenderConfig:
         Colour source: ``labels.npz`` (``pointtraj label``), the argmax of ``semantic_map.npz``
         (``pointtraj semantics``), or grey for all. ``"auto"`` takes the first that exists and
         is an error when neither does.
+    color_by : {"label", "instance"}
+        Colour each trajectory by its class (``colors``), or by its person
+        (``labels.npz`` ``instance``: one colour per person, grey for points on no person;
+        needs ``pointtraj label``).
     min_length : int
         Draw only trajectories living at least this many frames (1 draws all).
     unlabelled : bool
@@ -129,6 +133,7 @@ class RenderConfig:
     overlay_cameras: tuple[str, ...] = ()
     overlay_radius: int = 2
     colors: Literal["auto", "labels", "semantic_map", "grey"] = "auto"
+    color_by: Literal["label", "instance"] = "label"
     min_length: int = 1
     unlabelled: bool = True
     legend: bool = True
@@ -160,6 +165,8 @@ class RenderConfig:
             )
         if self.colors not in ("auto", "labels", "semantic_map", "grey"):
             raise bad("colors", "must be 'auto', 'labels', 'semantic_map' or 'grey'")
+        if self.color_by not in ("label", "instance"):
+            raise bad("color_by", "must be 'label' or 'instance'")
         if not self.views and not self.overlays:
             raise ValidationError("views: empty and overlays off: nothing to render")
         for name in ("tail", "stride", "min_length", "overlay_radius"):

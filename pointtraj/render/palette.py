@@ -11,7 +11,13 @@ import numpy as np
 if TYPE_CHECKING:
     from ..labelset import LabelSet
 
-__all__ = ["UNLABELLED_COLOR", "label_colors", "class_palette", "blend_colors"]
+__all__ = [
+    "UNLABELLED_COLOR",
+    "label_colors",
+    "class_palette",
+    "person_palette",
+    "blend_colors",
+]
 
 #: Colour of unlabelled trajectories (label -1).
 UNLABELLED_COLOR = (128, 128, 128)
@@ -68,6 +74,31 @@ def class_palette(class_names: Sequence[str], label_set: LabelSet | None = None)
             # Golden-ratio hues: distinct, deterministic colours for unknown classes.
             r, g, b = colorsys.hsv_to_rgb((0.13 + 0.618034 * k) % 1.0, 0.75, 0.9)
             out[k] = np.rint(np.array([r, g, b]) * 255)
+    return out
+
+
+def person_palette(count: int) -> np.ndarray:
+    """A distinct colour per person (instance id 0 .. count-1), for ``color_by = "instance"``.
+
+    Parameters
+    ----------
+    count : int
+        Number of people.
+
+    Returns
+    -------
+    (count, 3) uint8 ndarray
+        Saturated golden-ratio hues, the same for the same id in every render.
+
+    Examples
+    --------
+    >>> person_palette(2).tolist()
+    [[230, 57, 57], [57, 108, 230]]
+    """
+    out = np.empty((int(count), 3), np.uint8)
+    for i in range(int(count)):
+        r, g, b = colorsys.hsv_to_rgb((0.618034 * i) % 1.0, 0.75, 0.9)
+        out[i] = np.rint(np.array([r, g, b]) * 255)
     return out
 
 

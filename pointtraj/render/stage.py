@@ -219,6 +219,8 @@ def _load_scene(work: Path, cfg: RenderConfig) -> _Scene:
             check_class_names(capture.labels_path, label_set.names, made, names)
         inputs.append(capture.labels_path)
     palette = class_palette(names, label_set)
+    if cfg.color_by == "instance":  # the person ids take the place of the classes
+        labels, names, palette = _person_colors(labels_path, source, M)
     drawn = traj.lengths >= cfg.min_length  # (M,)
     if not cfg.unlabelled:
         drawn &= (labels >= 0) & (labels < len(names))
@@ -362,13 +364,45 @@ def _legend_origin(
     )
 
 
+def _person_colors(path: Path, source: str, M: int) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """For ``color_by = "instance"``: the person id per trajectory, names and palette.
+
+    Raises
+    ------
+    FileFormatError
+        If the colours do not come from ``labels.npz`` or it has no ``instance``.
+    """
+    from ..npzfile import load_npz
+    from .palette import person_palette
+
+    if source != "labels.npz":
+        raise FileFormatError(path, "no such file (color_by = 'instance' needs `pointtraj label`)")
+    z = load_npz(path, ("labels",), "a labels file")
+    if "instance" not in z:
+        raise FileFormatError(path, "has no instance (rerun `pointtraj label`)")
+    instance = np.asarray(z["instance"], np.int64)
+    if instance.shape != (M,):
+        raise FileFormatError(path, f"has {instance.shape[0]} instances, trajectories.npz {M}")
+    n = int(instance.max(initial=-1)) + 1
+    return instance, [f"person {i}" for i in range(n)], person_palette(n)
+
+
 def _settings(kind: str, name: str, scene: _Scene, cfg: RenderConfig) -> dict:
     """What the images of one output depend on; a change makes its frames stale."""
     inputs = [
         {"path": str(p.resolve()), "bytes": p.stat().st_size, "mtime_ns": p.stat().st_mtime_ns}
         for p in scene.inputs
     ]
-    keys = ["tail", "colors", "min_length", "unlabelled", "legend", "legend_corner", "caption"]
+    keys = [
+        "tail",
+        "colors",
+        "color_by",
+        "min_length",
+        "unlabelled",
+        "legend",
+        "legend_corner",
+        "caption",
+    ]
     if kind == "overlay":
         keys += ["overlay_radius"]
     else:
@@ -617,7 +651,7 @@ def render_work(
     legend_names = [scene.class_names[k] for k in present]
     legend_colors = scene.palette[present].reshape(-1, 3)
     if np.any((labels < 0) | (labels >= K)):
-        legend_names.append("unlabelled")
+        legend_names.append("no person" if cfg.color_by == "instance" else "unlabelled")
         legend_colors = np.vstack([legend_colors, [UNLABELLED_COLOR]]).astype(np.uint8)
 
     renders = work / "renders"

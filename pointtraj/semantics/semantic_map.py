@@ -105,6 +105,10 @@ class SemanticsConfig:
         image) see no class there (every confidence below :data:`NOTHING_CONFIDENCE`): a point
         on a person projects onto the person in every camera that sees it, so a point that
         half of its cameras see as background is background or misplaced in depth.
+    person_budget_mb : float
+        Memory cap of the person votes (:attr:`SemanticMap.person_votes`, 12 bytes per
+        point-frame and camera in a person mask): past it, votes are kept on every s-th frame
+        only (s from an upper bound, P C 12 bytes). 0 keeps none.
     """
 
     eps_e: float = 0.1
@@ -118,6 +122,7 @@ class SemanticsConfig:
     occlusion_depth_m: float = 0.05
     occlusion_cell_px: float = 8.0
     background_vote: float = 0.0
+    person_budget_mb: float = 256.0
 
     def __post_init__(self) -> None:
         if self.visibility not in ("geometric", "observed"):
@@ -143,6 +148,8 @@ class SemanticsConfig:
             raise ValidationError(f"chunk_size: must be >= 1, got {self.chunk_size}")
         if self.sample_budget_mb < 0:
             raise ValidationError(f"sample_budget_mb: must be >= 0, got {self.sample_budget_mb}")
+        if self.person_budget_mb < 0:
+            raise ValidationError(f"person_budget_mb: must be >= 0, got {self.person_budget_mb}")
 
 
 def geometric_visibility(
@@ -252,6 +259,12 @@ class SemanticMap:
     recognizer_options : dict
         The recogniser's options (strings, numbers and booleans), so that a later stage (the
         report's predictive validity) can run the same recogniser.
+    person_votes : (E, 3) int32 ndarray
+        Where the recogniser gives person masks (:meth:`Recognizer.recognize_people`): one row
+        ``(trajectory, image, person)`` per point-frame and camera (``V > eps_e``, inside the
+        image) that falls in a person mask, ``image = frame * C + camera``, ``person`` the
+        image's own person id. Empty without masks. The labelling stage's instances vote with
+        them (:mod:`pointtraj.instances`).
     """
 
     class_names: tuple[str, ...]
@@ -265,9 +278,15 @@ class SemanticMap:
     recognizer: str = ""
     fps: float = 30.0
     recognizer_options: dict[str, Any] = field(default_factory=dict)
+    person_votes: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int32))
 
     def __post_init__(self) -> None:
         self.class_names = tuple(self.class_names)
+        self.person_votes = np.asarray(self.person_votes, np.int32)
+        if self.person_votes.ndim != 2 or self.person_votes.shape[1] != 3:
+            raise ValidationError(
+                f"person_votes: expected shape (E, 3), got {self.person_votes.shape}"
+            )
         K = len(self.class_names)
         if not self.L3D:
             raise ValidationError("L3D: needs at least one pooling")
@@ -391,6 +410,8 @@ class SemanticMap:
             "fps": np.array(self.fps, dtype=np.float64),
             "recognizer_options": np.array(json.dumps(self.recognizer_options, sort_keys=True)),
         }
+        if len(self.person_votes):
+            arrays["person_votes"] = self.person_votes.astype(np.int32)
         for p in self.poolings:
             arrays[f"L3D_{p}"] = self.L3D[p].astype(np.float32)
             arrays[f"count_{p}"] = self.count[p].astype(np.int32)
@@ -438,6 +459,7 @@ class SemanticMap:
                 recognizer=str(arrays.get("recognizer", "")),
                 fps=float(arrays.get("fps", 30.0)),
                 recognizer_options=json.loads(str(arrays.get("recognizer_options", "{}"))),
+                person_votes=arrays.get("person_votes", np.zeros((0, 3), np.int32)),
             )
         except json.JSONDecodeError:
             raise FileFormatError(path, "recognizer_options: not JSON") from None
@@ -583,6 +605,13 @@ def build_semantic_map(
 
     frames = range(trajectories.num_frames) if frames is None else frames
     executor = executor or SerialExecutor()
+    # person votes: an upper bound of 12 bytes per point-frame and camera, kept under budget
+    vote_bytes = 12.0 * len(trajectories.xyz) * C
+    budget = config.person_budget_mb * 2**20
+    person_stride = 0 if budget <= 0 else max(1, int(np.ceil(vote_bytes / budget)))
+    if person_stride > 1:
+        logger.info("person votes on every %d-th frame (person_budget_mb)", person_stride)
+    votes: list[np.ndarray] = []
     job = _FrameJob(
         capture=capture,
         trajectories=trajectories,
@@ -592,6 +621,7 @@ def build_semantic_map(
         config=config,
         K=K,
         capture_dir=ctx_capture,
+        person_stride=person_stride,
     )
     if progress is not None:
         progress("semantic map", 0, len(frames))
@@ -606,6 +636,13 @@ def build_semantic_map(
         if pooled is None:  # no point alive, or no camera needed
             continue
         track_id = trajectories.row_track[trajectories.frame_rows(int(t))]
+        if "_people" in pooled:  # (E_t, 3): point of the frame, camera, person
+            local = pooled["_people"]
+            votes.append(
+                np.stack(
+                    [track_id[local[:, 0]], int(t) * C + local[:, 1], local[:, 2]], axis=1
+                ).astype(np.int32)
+            )
         sel = slot[track_id]  # (N,)
         has_sample = sel >= 0
         rows = sample_offsets[sel[has_sample]] + (int(t) - first_frame[track_id[has_sample]])
@@ -633,6 +670,7 @@ def build_semantic_map(
         eps_e=config.eps_e,
         recognizer=recognizer_name,
         fps=float(trajectories.fps),
+        person_votes=np.concatenate(votes) if votes else np.zeros((0, 3), np.int32),
     )
 
 
@@ -700,6 +738,7 @@ class _FrameJob:
     config: SemanticsConfig
     K: int
     capture_dir: str | None
+    person_stride: int = 0
 
 
 def _pool_frame(job: _FrameJob, t: int) -> dict[str, np.ndarray] | None:
@@ -710,6 +749,9 @@ def _pool_frame(job: _FrameJob, t: int) -> dict[str, np.ndarray] | None:
     dict of str to (N, K) float32 ndarray, or None
         Per pooling, the pooled confidences of the frame's N points, in the order of
         ``trajectories.frame(t)`` (NaN rows: no usable camera); None if nothing is pooled.
+        Where the recogniser gives person masks (on the frames of ``person_stride``), also
+        ``"_people"``: (E, 3) int32 rows (point of the frame, camera, person id) of the
+        point-frames (``V > eps_e``, inside the image) that fall in a person mask.
     """
     config, K, names, rig = job.config, job.K, job.names, job.rig
     capture = job.capture
@@ -730,11 +772,15 @@ def _pool_frame(job: _FrameJob, t: int) -> dict[str, np.ndarray] | None:
     needs_image = getattr(recognizer, "needs_image", True)
     # This frame's maps, one per camera (coarse: a few MB each); dropped after the frame.
     maps: list[np.ndarray | None] = [None] * C
+    people: list[np.ndarray | None] = [None] * C
+    with_people = job.person_stride > 0 and int(t) % job.person_stride == 0
     for c in np.flatnonzero(needed):
         image = capture.read(names[c], int(t)) if needs_image else None
-        L2D = recognizer.recognize(
-            image, ImageContext(camera=names[c], frame=int(t), capture=job.capture_dir)
-        )
+        ctx = ImageContext(camera=names[c], frame=int(t), capture=job.capture_dir)
+        if with_people:
+            L2D, people[c] = recognizer.recognize_people(image, ctx)
+        else:
+            L2D = recognizer.recognize(image, ctx)
         if L2D.ndim != 3 or L2D.shape[2] != K:
             raise ValidationError(
                 f"recogniser {recognizer.name!r} returned shape {L2D.shape} for camera "
@@ -748,7 +794,43 @@ def _pool_frame(job: _FrameJob, t: int) -> dict[str, np.ndarray] | None:
         pooled = _pool_chunk(fs.xyz[sl], V[sl], rig, sizes, maps, pools, eps, config)
         for p in pools:
             out[p][sl] = pooled[p]
+    if any(m is not None for m in people):
+        out["_people"] = _person_votes(rig, sizes, people, fs.xyz, V, eps)
     return out
+
+
+def _person_votes(
+    rig: Any,
+    sizes: np.ndarray,
+    people: list[np.ndarray | None],
+    xyz: np.ndarray,
+    V: np.ndarray,
+    eps: float,
+) -> np.ndarray:
+    """The person masks under one frame's points: (E, 3) int32 rows (point, camera, person).
+
+    ``people`` holds per camera an (h, w) int16 person-id map (-1: none) or None; a point
+    votes in the cameras with ``V > eps`` where it projects inside the image, with the id of
+    the cell it falls in (nearest cell, the sampling convention of
+    :mod:`pointtraj.semantics.sampling`).
+    """
+    proj = rig.project(xyz)
+    rows = []
+    for c, ids in enumerate(people):
+        if ids is None:
+            continue
+        use = np.flatnonzero(np.asarray(proj.in_image[c], bool) & (V[:, c] > eps))  # (n,)
+        if not use.size:
+            continue
+        W, H = (int(v) for v in sizes[c])
+        h, w = ids.shape
+        px = proj.pixels[c][use]  # (n, 2)
+        x = np.clip(np.rint((px[:, 0] + 0.5) * w / W - 0.5), 0, w - 1).astype(np.int64)
+        y = np.clip(np.rint((px[:, 1] + 0.5) * h / H - 0.5), 0, h - 1).astype(np.int64)
+        pid = ids[y, x]  # (n,)
+        hit = pid >= 0
+        rows.append(np.stack([use[hit], np.full(int(hit.sum()), c), pid[hit]], axis=1))
+    return np.concatenate(rows).astype(np.int32) if rows else np.zeros((0, 3), np.int32)
 
 
 def _pool_chunk(

@@ -9,6 +9,8 @@ Layout under ``<capture>/gt/`` (spec: ``data_specs/groundtruth.md``):
   (M, C) bool at frame t. A frame's file is written last, after all its images and maps, so its
   presence marks the frame complete;
 - ``labels/<camera>/<t:06d>.png``: uint8 label map, 255 = background, else the class index;
+- ``instances/<camera>/<t:06d>.png``: uint8 instance map, 255 = none, else the instance id of
+  the geometry seen (figure or object; the floor has none);
 - ``depth/<camera>/<t:06d>.png``: uint16 depth (camera-frame z) in millimetres, 0 = no hit.
 """
 
@@ -35,6 +37,9 @@ __all__ = [
     "load_label_map",
     "load_depth_map",
     "save_label_map",
+    "save_instance_map",
+    "load_instance_map",
+    "instance_map_path",
     "save_depth_map",
     "sample_ground_truth_points",
     "visibility_from_depth_maps",
@@ -325,6 +330,49 @@ def save_label_map(capture_dir: str | os.PathLike, camera: str, frame: int, labe
     path = _map_path(capture_dir, "labels", camera, frame)
     _write_png(path, png)
     return path
+
+
+def save_instance_map(capture_dir: str | os.PathLike, camera: str, frame: int, instance) -> Path:
+    """Write ``gt/instances/<camera>/<frame:06d>.png`` (uint8, 255 = none).
+
+    Parameters
+    ----------
+    instance : (H, W) int ndarray
+        Instance id of the geometry seen, -1 where none; ids must be below 255.
+    """
+    ins = np.asarray(instance)
+    if ins.ndim != 2:
+        raise ValidationError(f"instance: expected shape (H, W), got {ins.shape}")
+    if ins.size and ins.max() >= _BACKGROUND_PNG:
+        raise ValidationError("instance: ids must be below 255 to fit the PNG format")
+    png = np.where(ins < 0, _BACKGROUND_PNG, ins).astype(np.uint8)
+    path = instance_map_path(capture_dir, camera, frame)
+    _write_png(path, png)
+    return path
+
+
+def instance_map_path(capture_dir: str | os.PathLike, camera: str, frame: int) -> Path:
+    """``<capture>/gt/instances/<camera>/<frame:06d>.png`` (:func:`load_instance_map`)."""
+    return _map_path(capture_dir, "instances", camera, frame)
+
+
+def load_instance_map(capture_dir: str | os.PathLike, camera: str, frame: int) -> np.ndarray:
+    """The ground-truth instance map of one image (captures rendered before it existed have none).
+
+    Returns
+    -------
+    (H, W) int16 ndarray
+        Instance id of the geometry seen (``gt/points.npz`` ``instance``), -1 = none.
+
+    Raises
+    ------
+    FileFormatError
+        If the map is missing or not a uint8 PNG.
+    """
+    png = _read_png(instance_map_path(capture_dir, camera, frame), np.uint8)
+    out = png.astype(np.int16)
+    out[png == _BACKGROUND_PNG] = -1
+    return out
 
 
 def save_depth_map(capture_dir: str | os.PathLike, camera: str, frame: int, depth) -> Path:

@@ -634,6 +634,7 @@ def render_capture(
         # One writer thread encodes and writes images (OpenCV releases the GIL) while the main
         # thread renders; at most ``backlog`` views wait, which bounds memory.
         backlog = max(2, 2 * max(len(ch) for ch in renderer.camera_chunks()))
+        instances = np.array([g.instance for g in sc.geometries], np.int16)
         pending: deque[Future] = deque()
 
         def drain(keep: int) -> None:
@@ -643,7 +644,7 @@ def render_capture(
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="synth-writer") as pool:
 
             def write(t: int, view: RenderedView) -> None:
-                pending.append(pool.submit(_write_view, cap, out, t, view))
+                pending.append(pool.submit(_write_view, cap, out, t, view, instances))
                 drain(backlog)
 
             for t in range(frames):
@@ -711,14 +712,17 @@ def _render_frame(
     return xyz, visible
 
 
-def _write_view(cap: Any, out: Path, t: int, view: RenderedView) -> float:
-    """Write one rendered view's image, label map and depth map; returns the seconds taken."""
+def _write_view(cap: Any, out: Path, t: int, view: RenderedView, instances: np.ndarray) -> float:
+    """Write one rendered view's image, label, instance and depth maps; returns the seconds
+    taken. ``instances`` (G,) is the instance id of each geometry."""
     from . import groundtruth as gtio
 
     t1 = time.perf_counter()
     name = cap.rig.names[view.camera]
     cap.write_frame(view.camera, t, view.image)
     gtio.save_label_map(out, name, t, view.label)
+    lut = np.append(np.asarray(instances, np.int16), np.int16(-1))  # geometry -1: nothing hit
+    gtio.save_instance_map(out, name, t, lut[view.geometry])
     gtio.save_depth_map(out, name, t, view.depth)
     return time.perf_counter() - t1
 
@@ -771,9 +775,10 @@ def _render_frame_task(context: tuple[_FrameJob, RenderSettings | None], t: int)
     out = Path(job.out)
     timings = renderer.timings = RenderTimings()
     timings.extra.update(write=0.0, ground_truth=0.0)
+    instances = np.array([g.instance for g in renderer.scene.geometries], np.int16)
 
     def write(t: int, view: RenderedView) -> None:
-        timings.extra["write"] += _write_view(cap, out, t, view)
+        timings.extra["write"] += _write_view(cap, out, t, view, instances)
 
     xyz, visible = _render_frame(renderer, points, t, fps, write)
     gtio.save_frame(out, t, xyz, visible)  # after every image and map of frame t

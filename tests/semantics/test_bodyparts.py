@@ -180,16 +180,29 @@ def test_models_cli(tmp_path, monkeypatch):
 
 
 def test_two_people_side_by_side(recognizer_factory):
-    """A front and a back view pasted side by side: max_people=2 finds both, 1 finds one."""
+    """A front and a back view pasted side by side: the default (every person, issue 17: it
+    kept one) and max_people=2 find both, 1 finds one; the person-id map tells them apart."""
     image = np.concatenate(
         [_read("pose2sim_cam01_f010.jpg")[:, :540], _read("pose2sim_cam03_f010.jpg")[:, :540]],
         axis=1,
     )
-    poses = recognizer_factory(PARTS, max_people=2).estimate_poses(image)
-    assert len(poses) == 2
-    centres = sorted(float(p.landmarks[[11, 12, 23, 24], 0].mean()) for p in poses)
-    assert centres[0] < 540 < centres[1]
+    default = recognizer_factory(PARTS)
+    assert default.max_people is None
+    for rec in (default, recognizer_factory(PARTS, max_people=2)):
+        poses = rec.estimate_poses(image)
+        assert len(poses) == 2
+        centres = sorted(float(p.landmarks[[11, 12, 23, 24], 0].mean()) for p in poses)
+        assert centres[0] < 540 < centres[1]
     assert len(recognizer_factory(PARTS, max_people=1).estimate_poses(image)) == 1
+    L2D, people = default.recognize_people(image)
+    np.testing.assert_array_equal(L2D, default.recognize(image))
+    assert people.shape == L2D.shape[:2] and people.dtype == np.int16
+    half = people.shape[1] // 2
+    left = np.unique(people[:, :half][people[:, :half] >= 0])
+    right = np.unique(people[:, half:][people[:, half:] >= 0])
+    assert len(left) == 1 and len(right) == 1 and left[0] != right[0]
+    with pytest.raises(ValidationError, match="max_people"):
+        recognizer_factory(PARTS, max_people=0)
 
 
 def test_missing_model_files_name_the_fetch_command(tmp_path, monkeypatch):

@@ -426,3 +426,73 @@ def test_frame_subset_and_progress(scene, capsys):
     assert (smap.count["average"][~alive] == 0).all()
     assert (smap.count["average"][alive] <= expected[alive]).all()
     assert smap.count["average"][alive].sum() > 0.9 * expected[alive].sum()
+
+
+class PeopleRecognizer(RasterRecognizer):
+    """Also paints a person-id map: sphere k is person k, numbered the other way round in the
+    odd cameras (person ids are per image)."""
+
+    def recognize_people(self, image, context=None):
+        L2D = self.recognize(image, context)
+        c = self.rig.index(context.camera)
+        people = np.where(L2D[..., :2].max(axis=2) > 0, L2D[..., :2].argmax(axis=2), -1)
+        if c % 2:
+            people = np.where(people >= 0, 1 - people, -1)
+        return L2D, people.astype(np.int16)
+
+
+def test_person_votes_sample_the_person_masks(scene, tmp_path):
+    rig, traj, label = scene
+    cfg = SemanticsConfig(visibility="observed")
+    smap = build_semantic_map(
+        FakeCapture(rig), traj, PeopleRecognizer(rig, traj, label), config=cfg
+    )
+    votes = smap.person_votes
+    assert votes.dtype == np.int32 and votes.ndim == 2 and votes.shape[1] == 3 and len(votes)
+    track, image, person = votes.T.astype(np.int64)
+    frame, cam = image // len(rig), image % len(rig)
+    expected = np.where(cam % 2 == 1, 1 - label[track], label[track])
+    assert (person == expected).mean() > 0.8  # the spheres overlap in some views
+    # exactly the visible point-frames inside the image and a mask, with the nearest cell's id
+    rec = PeopleRecognizer(rig, traj, label)
+    for t in range(traj.num_frames):
+        fs = traj.frame(t)
+        if not len(fs.rows):
+            continue
+        proj = rig.project(fs.xyz)
+        for c, name in enumerate(rig.names):
+            ids = rec.recognize_people(None, ImageContext(name, t))[1]
+            h, w = ids.shape
+            px = proj.pixels[c]
+            x = np.clip(np.rint((px[:, 0] + 0.5) * w / W - 0.5), 0, w - 1).astype(int)
+            y = np.clip(np.rint((px[:, 1] + 0.5) * h / H - 0.5), 0, h - 1).astype(int)
+            pid = np.where(proj.in_image[c] & (fs.visibility[:, c] > cfg.eps_e), ids[y, x], -1)
+            sel = (frame == t) & (cam == c)
+            got = dict(zip(track[sel].tolist(), person[sel].tolist()))
+            want = {int(m): int(p) for m, p in zip(fs.track_id, pid) if p >= 0}
+            assert got == want
+    smap.save(tmp_path / "semantic_map.npz")
+    np.testing.assert_array_equal(
+        SemanticMap.load(tmp_path / "semantic_map.npz").person_votes, votes
+    )
+    # a recogniser without person masks, or a zero budget: no votes
+    plain = build_semantic_map(FakeCapture(rig), traj, RasterRecognizer(rig, traj, label))
+    assert plain.person_votes.shape == (0, 3)
+    none = build_semantic_map(
+        FakeCapture(rig),
+        traj,
+        PeopleRecognizer(rig, traj, label),
+        config=SemanticsConfig(visibility="observed", person_budget_mb=0),
+    )
+    assert none.person_votes.shape == (0, 3)
+    # a tight budget keeps every s-th frame's votes
+    tight = build_semantic_map(
+        FakeCapture(rig),
+        traj,
+        PeopleRecognizer(rig, traj, label),
+        config=SemanticsConfig(visibility="observed", person_budget_mb=1e-3),
+    )
+    stride = int(np.ceil(12.0 * traj.num_point_frames * len(rig) / (1e-3 * 2**20)))
+    assert stride > 1
+    kept = tight.person_votes[:, 1] // len(rig)
+    assert len(tight.person_votes) and (kept % stride == 0).all()

@@ -194,3 +194,33 @@ def test_registry_entries_resolve_to_recognizers():
         except ModuleNotFoundError as exc:  # a recogniser module not written yet
             pytest.skip(f"{name}: {exc}")
         assert issubclass(cls, Recognizer), name
+
+
+def test_person_masks_from_the_ground_truth_instance_map(tmp_path):
+    """Two figures side by side: two person ids on their body pixels (image-local numbering),
+    none on the ball; a capture without instance maps gives None."""
+    from pointtraj.synth import groundtruth
+
+    lab = figure_map()
+    inst = np.full(lab.shape, -1, np.int16)
+    inst[:, :64][lab[:, :64] >= 0] = 7  # the left figure (its instance id in the scene)
+    inst[:, 64:][lab[:, 64:] >= 0] = 3  # the right one, and the ball (instance 3 too)
+    groundtruth.save_label_map(tmp_path, "cam01", 0, lab)
+    rec = make_recognizer("simulated", LABELS, noise="none", downsample=4)
+    ctx = ImageContext("cam01", 0, capture=str(tmp_path))
+    L2D, people = rec.recognize_people(None, ctx)
+    assert people is None  # no gt/instances yet
+    groundtruth.save_instance_map(tmp_path, "cam01", 0, inst)
+    np.testing.assert_array_equal(groundtruth.load_instance_map(tmp_path, "cam01", 0), inst)
+    L2D, people = rec.recognize_people(None, ctx)
+    np.testing.assert_array_equal(L2D, rec.recognize(None, ctx))
+    assert people.shape == L2D.shape[:2] and people.dtype == np.int16
+    assert set(np.unique(people).tolist()) == {-1, 0, 1}
+    assert (people[:, : 64 // 4] != 1).all() and (people[:, 64 // 4 :] != 0).all()
+    body = np.isin(lab[2::4, 2::4], LABELS.classes_of_kind("body"))
+    np.testing.assert_array_equal(people >= 0, body)  # the ball is not a person
+    # every person missed: no person pixels
+    _, missed = make_recognizer("simulated", LABELS, noise="none", p_miss=1.0).recognize_people(
+        None, ctx
+    )
+    assert (missed == -1).all()

@@ -62,3 +62,27 @@ class Recognizer(abc.ABC):
         (h, w, K) float32 ndarray
             Confidences in [0, 1]; h <= H and w <= W.
         """
+
+    def recognize_people(
+        self, image: np.ndarray, context: ImageContext | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Class confidences and, where the recogniser tells people apart, a person-id map.
+
+        The semantics stage samples the person-id map at the trajectories' projections; the
+        labelling stage's instances (:mod:`pointtraj.instances`) vote with it. Ids are per
+        image: person 0 of one image need not be person 0 of another.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint8 ndarray
+        context : ImageContext, optional
+
+        Returns
+        -------
+        L2D : (h, w, K) float32 ndarray
+            As :meth:`recognize`.
+        people : (h', w') int16 ndarray or None
+            Person id per cell (0, 1, ...; -1 where no person), on its own grid (sampled like
+            L2D); None (the default) when the recogniser gives no person masks.
+        """
+        return self.recognize(image, context), None

@@ -21,6 +21,9 @@ Pipeline for one image:
    nearest one, ``L`` the torso length (mid-shoulder to mid-hip) and ``visibility_part`` the
    mean landmark visibility. The nearest part thus gets the mask's confidence, the others fall
    off softly. Several people combine by maximum.
+4. Every detected person is kept by default (``max_people = None``); :meth:`recognize_people`
+   also gives a person-id map (the person whose mask is strongest, where it exceeds 0.5) for
+   the labelling stage's instances.
 
 "Left" is the person's own left, as in MediaPipe's landmark names. The model files come from
 the ``mediapipe==0.10.21`` wheel on PyPI (Apache-2.0): ``pointtraj models fetch body-parts``.
@@ -186,8 +189,9 @@ class BodyPartRecognizer(Recognizer):
         ``body-parts`` entry of the model cache (:mod:`pointtraj.models`).
     fetch : bool
         Fetch the model files with pip when they are not cached (logged), instead of raising.
-    max_people : int
-        Most people per image (strongest detections).
+    max_people : int or None
+        Most people per image (the strongest detections); None (default) keeps every person
+        detected.
     detection_threshold : float
         Minimum pose-detector score.
     presence_threshold : float
@@ -213,7 +217,7 @@ class BodyPartRecognizer(Recognizer):
         mapping: Mapping[str, str] | None = None,
         model_dir: str | None = None,
         fetch: bool = False,
-        max_people: int = 1,
+        max_people: int | None = None,
         detection_threshold: float = 0.5,
         presence_threshold: float = 0.5,
         refine: bool = True,
@@ -232,11 +236,11 @@ class BodyPartRecognizer(Recognizer):
         for opt, value in (("softness", softness), ("reach", reach)):
             if not value > 0:
                 raise ValidationError(f"{opt}: expected a positive number, got {value}")
-        if max_people < 1 or map_size < 1:
+        if (max_people is not None and max_people < 1) or map_size < 1:
             raise ValidationError(
                 f"max_people and map_size must be positive, got {max_people} and {map_size}"
             )
-        self.max_people = int(max_people)
+        self.max_people = None if max_people is None else int(max_people)
         self.detection_threshold = float(detection_threshold)
         self.presence_threshold = float(presence_threshold)
         self.refine = bool(refine)
@@ -458,12 +462,33 @@ class BodyPartRecognizer(Recognizer):
 
     def recognize(self, image: np.ndarray, context: ImageContext | None = None) -> np.ndarray:
         """Body-part confidences, see :meth:`Recognizer.recognize` and ``map_size``."""
+        return self.recognize_people(image, context)[0]
+
+    def recognize_people(
+        self, image: np.ndarray, context: ImageContext | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Body-part confidences and the person-id map, from one pose estimate.
+
+        Returns
+        -------
+        L2D : (h, w, K) float32 ndarray
+            As :meth:`recognize`.
+        people : (h, w) int16 ndarray
+            Index of the person (in :meth:`estimate_poses` order) whose mask is strongest at
+            each cell, where it exceeds 0.5; -1 elsewhere.
+        """
         image = _check_image(image)
         h, w = map_shape(image.shape, self.map_size)
         maps = np.zeros((h, w, len(self.outputs)), dtype=np.float32)
-        for pose in self.estimate_poses(image):
-            np.maximum(maps, self.part_maps(pose, image.shape), out=maps)
-        return _gather_channels(maps, self.channels, len(self.class_names))
+        best = np.full((h, w), 0.5, dtype=np.float32)
+        people = np.full((h, w), -1, dtype=np.int16)
+        for i, pose in enumerate(self.estimate_poses(image)):
+            person = self.part_maps(pose, image.shape)
+            np.maximum(maps, person, out=maps)
+            stronger = person[..., -1] > best  # (h, w)
+            people[stronger] = i
+            best[stronger] = person[..., -1][stronger]
+        return _gather_channels(maps, self.channels, len(self.class_names)), people
 
 
 def _interpreter(path: object, threads: int):  # -> ai_edge_litert Interpreter

@@ -78,9 +78,20 @@ class CombinedRecognizer(Recognizer):
 
     def recognize(self, image: np.ndarray, context: ImageContext | None = None) -> np.ndarray:
         """(h, w, K): the finest part's grid, each class the maximum over the parts."""
+        return self._combine([p.recognize(image, context) for p in self.parts])
+
+    def recognize_people(
+        self, image: np.ndarray, context: ImageContext | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The combined maps, and the person-id map of the first part that gives one."""
+        results = [p.recognize_people(image, context) for p in self.parts]
+        people = next((ids for _, ids in results if ids is not None), None)
+        return self._combine([m for m, _ in results]), people
+
+    def _combine(self, maps: list[np.ndarray]) -> np.ndarray:
+        """(h, w, K): the finest map's grid, each class the maximum over ``maps``."""
         import cv2
 
-        maps = [p.recognize(image, context) for p in self.parts]
         h, w = max((m.shape[:2] for m in maps), key=lambda s: s[0] * s[1])
         out = np.zeros((h, w, len(self.class_names)), np.float32)
         for m in maps:

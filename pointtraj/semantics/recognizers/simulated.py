@@ -491,6 +491,61 @@ class SimulatedRecognizer(Recognizer):
         FileFormatError
             If the ground-truth label map cannot be read.
         """
+        capture = self._capture(context)
+        from ...synth.groundtruth import load_label_map
+
+        label_map = load_label_map(capture, context.camera, context.frame)
+        return self._confidences(capture, context, image, label_map)
+
+    def recognize_people(
+        self, image: np.ndarray | None, context: ImageContext | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Simulated confidences and person-id map for the image named by ``context``.
+
+        The person-id map is the ground-truth instance map (``gt/instances``) on the body
+        classes' pixels, at the confidences' coarse grid (each cell takes its centre pixel's
+        person), with ids renumbered per image (first seen, first numbered) so they carry no
+        ground truth across images. Per (view, frame block, person), with probability
+        ``p_miss`` the person is missed (-1), as a detector misses a person. None for a
+        capture without instance maps (rendered before they existed).
+        """
+        capture = self._capture(context)
+        from ...synth.groundtruth import instance_map_path, load_instance_map, load_label_map
+
+        label_map = load_label_map(capture, context.camera, context.frame)
+        L2D = self._confidences(capture, context, image, label_map)
+        if not instance_map_path(capture, context.camera, context.frame).is_file():
+            return L2D, None
+        inst = load_instance_map(capture, context.camera, context.frame)  # (H, W)
+        if inst.shape != label_map.shape:
+            raise FileFormatError(
+                instance_map_path(capture, context.camera, context.frame),
+                f"is {inst.shape}, the label map {label_map.shape}",
+            )
+        body = np.array([k == "body" for k in self.kinds] + [False])  # index -1: background
+        h, w = L2D.shape[:2]
+        H, W = label_map.shape
+        rows = np.minimum(((np.arange(h) + 0.5) * H / h).astype(np.int64), H - 1)
+        cols = np.minimum(((np.arange(w) + 0.5) * W / w).astype(np.int64), W - 1)
+        cell_inst = inst[np.ix_(rows, cols)].astype(np.int64)  # (h, w)
+        cell_body = body[label_map[np.ix_(rows, cols)].astype(np.int64)]  # (h, w)
+        cell_inst[~cell_body] = -1
+        key = zlib.crc32(context.camera.encode("utf-8"))
+        block = (int(context.frame) + key % self.noise.hold_frames) // self.noise.hold_frames
+        present = np.unique(cell_inst[cell_inst >= 0])
+        if present.size:
+            miss = _seed(self.seed, context.camera, block, 2).random(int(present.max()) + 1)
+            cell_inst[np.isin(cell_inst, present[miss[present] < self.noise.p_miss])] = -1
+        people = np.full((h, w), -1, np.int16)
+        seen = cell_inst >= 0
+        if seen.any():  # renumber 0, 1, ... in raster order of first appearance
+            uniq, first, inv = np.unique(cell_inst[seen], return_index=True, return_inverse=True)
+            rank = np.argsort(np.argsort(first))
+            people[seen] = rank[inv].astype(np.int16)
+        return L2D, people
+
+    def _capture(self, context: ImageContext | None) -> str:
+        """The capture folder of ``context`` (or the constructor's)."""
         if context is None:
             raise ValidationError("simulated recogniser: needs an ImageContext (camera, frame)")
         capture = context.capture or self.capture
@@ -498,9 +553,14 @@ class SimulatedRecognizer(Recognizer):
             raise ValidationError(
                 "simulated recogniser: no capture folder (pass capture= or ImageContext.capture)"
             )
-        from ...synth.groundtruth import label_map_path, load_label_map
+        return capture
 
-        label_map = load_label_map(capture, context.camera, context.frame)
+    def _confidences(
+        self, capture: str, context: ImageContext, image: np.ndarray | None, label_map: np.ndarray
+    ) -> np.ndarray:
+        """:func:`simulate_confidences` of one image's label map."""
+        from ...synth.groundtruth import label_map_path
+
         if image is not None and np.shape(image)[:2] != np.shape(label_map):
             raise ValidationError(
                 f"image of {context.camera} frame {context.frame} is {np.shape(image)[:2]}, "
