@@ -292,8 +292,8 @@ def _summary_section(traj, metrics: dict) -> Section:
         f"second), {traj.num_point_frames} point-frames over {frames} frames "
         f"({traj.fps:g} Hz) from {traj.num_cameras} cameras: "
         f"{metrics['trajectories.points_per_frame']:.0f} points per frame.\n\n"
-        "| trajectory length (frames) | p10 | median | p90 | mean |\n|---|---|---|---|---|\n"
-        f"| | {_fmt(metrics['trajectories.length.p10'], 0)} | "
+        "| | p10 | median | p90 | mean |\n|---|---|---|---|---|\n"
+        f"| trajectory length (frames) | {_fmt(metrics['trajectories.length.p10'], 0)} | "
         f"{_fmt(metrics['trajectories.length.median'], 0)} | "
         f"{_fmt(metrics['trajectories.length.p90'], 0)} | "
         f"{_fmt(metrics['trajectories.length.mean'], 1)} |\n\n"
@@ -331,7 +331,7 @@ def _ground_truth_section(
     )
     lines = [
         "3D error: the distance of every point-frame to the rendered ground-truth surface of "
-        "its frame, the smallest over the cameras that see it (in each: to the plane through "
+        "its frame, the smallest over the cameras it projects into (in each: to the patch of "
         "the depth map's pixels on the surface where the point projects, among the 3x3 around "
         "it, never across a silhouette; to the nearest of the 3x3 pixels where that is closer): "
         f"median **{_mm(metrics['gt.error_m.median'])} mm**, 90th percentile "
