@@ -17,8 +17,25 @@ For every point-frame of the work folder's trajectories it computes
   ``RaycastingScene.compute_distance``), the figures, the ball and the floor;
 
 and prints both distributions, their differences, and how the point-frames without surface in
-the depth maps lie against the meshes. The depth maps see only visible surfaces, so they can
-only err high where the point is far from what its cameras see.
+the depth maps lie against the meshes. The depth maps see only the surfaces their cameras see,
+so they err high where a point is far from all of those.
+
+Measured on the demo (``pointtraj demo``: ring8, 60 frames, 34,360 point-frames; 23 s):
+
+=========================================  =================  ==============================
+                                           depth maps         meshes
+=========================================  =================  ==============================
+median / p90 (mm)                          6.5 / 25.2         6.6 / 23.9
+no surface near (point-frames)             6                  (those 6: 32 mm from the meshes)
+difference p10 / median / p90 (mm)         -1.0 / -0.2 / 1.0
+within 1 mm / 2 mm; lower by > 2 mm        80 % / 90 %; 2.2 %
+=========================================  =================  ==============================
+
+Before issue #17 the report fitted one unbounded plane to the whole 3x3 window of the cameras
+the point is visible in when its depths spread under 5 %, and counted the 94 point-frames with
+no surface near as 1 m: median 6.6 mm, p90 27.2 mm (26.7 without the 1 m), within 2 mm of the
+meshes for 81 % of the point-frames and lower by more than 2 mm for 6.9 % (a plane through two
+surfaces across a silhouette, or a limb's tangent plane at a grazing ray).
 """
 
 from __future__ import annotations

@@ -39,7 +39,8 @@ logger = logging.getLogger(__name__)
 #: nothing about its accuracy.
 VIEW_BINS = {"1": (0, 1), "2": (2, 2), "3": (3, 3), "4+": (4, 1 << 30)}
 
-#: The view buckets whose reprojection error is near 0 by construction (unverifiable).
+#: The view buckets whose reprojection error verifies nothing: one view, or two (near 0 by
+#: construction).
 UNVERIFIABLE_BINS = ("1", "2")
 
 #: The paper's connectivity rule: cameras whose optical axes are more than this apart are

@@ -282,7 +282,8 @@ def _summary_section(traj, metrics: dict) -> Section:
         metrics[f"reprojection_px.views.{name}.p90"] = _q(e, 90)
         metrics[f"reprojection_px.views.{name}.support"] = int(sel.sum())
         label = "at most 1" if name == "1" else name
-        note = " (unverifiable: near 0 by construction)" if name in UNVERIFIABLE_BINS else ""
+        note = {"1": " (unverifiable: one view)", "2": " (unverifiable: near 0 by construction)"}
+        note = note.get(name, " (unverifiable)") if name in UNVERIFIABLE_BINS else ""
         rows.append(
             f"| {label}{note} | {int(sel.sum())} ({_fmt(100 * share, 1)} %) | "
             f"{_fmt(_q(e, 50), 2)} | {_fmt(_q(e, 90), 2)} |"
@@ -299,7 +300,8 @@ def _summary_section(traj, metrics: dict) -> Section:
         f"{_fmt(metrics['trajectories.length.mean'], 1)} |\n\n"
         "Reprojection error by the number of cameras that observe the point-frame. A point "
         "seen by 2 cameras is triangulated exactly from them, so its error is near 0 whatever "
-        "its accuracy: only the rows of 3 and more views verify anything.\n\n"
+        "its accuracy, and one seen by 1 has nothing to check it: only the rows of 3 and more "
+        "views verify anything.\n\n"
         "| observed views | point-frames | median (px) | p90 (px) |\n|---|---|---|---|\n"
         + "\n".join(rows)
         + "\n\nThe paper's trajectories are fragments too: they emerge and dissolve as points "
