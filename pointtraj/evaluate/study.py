@@ -4,7 +4,10 @@
 :mod:`pointtraj.evaluate.validity` from a work folder (and its capture), and writes
 ``WORK/report/`` with :func:`pointtraj.evaluate.report.write_report`:
 
-* **summary**: trajectories, their lengths and density, reprojection errors;
+* **health** (first): cheap checks that warn when the figures below hide a failure
+  (:mod:`pointtraj.evaluate.health`, issue #17);
+* **summary**: trajectories, their lengths and density, reprojection errors by the number of
+  observing cameras (two-view ones marked unverifiable);
 * **ground truth** (synthetic captures only): 3D error against the rendered surface, and label
   accuracy (overall, per class, confusion) of the graph cut and of the argmax of each pooling;
 * **views** (synthetic captures only): the cameras that keep each point against those that
@@ -13,7 +16,8 @@
 * **affinity effectiveness** (the paper's Figure 6): label disagreement of neighbour pairs by
   distance, all ε_s-neighbours against SE(3)-affinity neighbours;
 * **predictive validity** (the paper's Figure 7): agreement with the recogniser in held-out
-  cameras against the number of labelling cameras, view against average pooling;
+  cameras against the number of labelling cameras, view against average pooling, with the
+  point-frames and trajectories it compared;
 * **timing** of every stage (``WORK/timings.json``).
 
 Every study is skipped, with a line in the report saying why, when its inputs are missing.
@@ -340,8 +344,8 @@ def _ground_truth_section(
         f"**{_mm(metrics['gt.error_m.p90'])} mm** over {len(err)} point-frames "
         "(the paper has no ground truth; our goals are 5 mm and 2 cm). "
         f"{int(none.sum())} point-frames ({_fmt(100 * metrics['gt.no_surface.share'], 2)} %) "
-        "have no ground-truth surface in the 3x3 pixels around their projection in any of "
-        "their cameras: they are far from every surface, and counted here instead of in the "
+        "have no ground-truth surface in the 3x3 pixels around their projection in any "
+        "camera: they are far from every surface, and counted here instead of in the "
         "percentiles.",
         "",
     ]

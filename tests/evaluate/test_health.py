@@ -187,3 +187,46 @@ def test_a_one_pair_run_warns_at_the_end(two_camera_capture):
         <= metrics["validity.support.sampled_point_frames"]
     )
     assert "point-frames compared" in index
+
+
+#: A healthy run that is cheap: the ground-truth trajectories of 2 frames of the demo's rig
+#: (8 cameras), through every later stage.
+HEALTHY = """
+name = "healthy"
+capture = "cap"
+work = "work"
+trajectories = "ground_truth"
+stages = ["capture", "trajectories", "semantics", "affinity", "label", "evaluate"]
+
+[synth]
+preset = "ring8"
+frames = 2
+points_per_part = 40
+
+[semantics]
+recognizer = "simulated"
+options = { noise = "low" }
+
+[evaluate]
+validity_frames = 2
+
+[executor]
+workers = 1
+"""
+
+
+def test_a_healthy_run_is_silent(tmp_path):
+    """The other half of issue #17's check: no warning where nothing went wrong (the demo's
+    rig; the demo itself, too slow for a test, ends with ``health: no warnings`` as well)."""
+    (tmp_path / "healthy.toml").write_text(HEALTHY, encoding="utf-8")
+    res = CliRunner().invoke(
+        main,
+        ["run", str(tmp_path / "healthy.toml"), "--capture", str(tmp_path / "cap")]
+        + ["--work", str(tmp_path / "work")],
+    )
+    assert res.exit_code == 0, res.output
+    assert res.stdout.rstrip().splitlines()[-1] == "health: no warnings"
+    metrics = json.loads((tmp_path / "work" / "report" / "metrics.json").read_text("utf-8"))
+    assert metrics["health.warnings"] == []
+    assert metrics["health.below_floor_share"] == 0  # ground-truth points lie on the surfaces
+    assert metrics["health.two_view_share"] < 0.5 and metrics["validity.support.share"] > 0.2
