@@ -130,9 +130,11 @@ def evaluate(capture_dir: Path, traj, frames: range, args) -> dict:
     gt = load_ground_truth(capture_dir)
     rig = cap.rig.subset(traj.camera_names)
     err = surface_errors(capture_dir, rig, traj, frames)
-    err = np.where(np.isnan(err), 1.0, err)  # no surface near the point: far off
     rows = np.concatenate([traj.frame_rows(t) for t in frames])
     on_actor = actor_mask(gt, traj, frames, args.actor_radius)[rows]
+    actors = int(on_actor.sum())
+    none = np.isnan(err)  # no surface near the point in any camera: counted apart
+    err, on_actor = err[~none], on_actor[~none]
     dr = drift(gt, traj, args.actor_radius)
     seconds = len(frames) / traj.fps
     lengths = traj.lengths
@@ -149,8 +151,9 @@ def evaluate(capture_dir: Path, traj, frames: range, args) -> dict:
         "point_frames": traj.num_point_frames,
         "trajectories_per_second": traj.num_trajectories / seconds,
         "point_frames_per_second": traj.num_point_frames / seconds,
-        "actor_points_per_frame": float(on_actor.sum() / len(frames)),
-        "actor_point_frames_per_second": float(on_actor.sum() / seconds),
+        "actor_points_per_frame": actors / len(frames),
+        "actor_point_frames_per_second": actors / seconds,
+        "error_no_surface_point_frames": int(none.sum()),
         "error_all_median_m": q(err, 50),
         "error_all_p90_m": q(err, 90),
         "error_actor_median_m": q(err[on_actor], 50),

@@ -33,6 +33,7 @@ def evaluate(work: Path, capture: Path | None, config_path: Path | None, **optio
     validity on held-out cameras) and, on synthetic captures, the ground-truth metrics.
     """
     from ..config import load_toml
+    from ..evaluate.health import health_lines
     from ..evaluate.study import EvaluateConfig, evaluate_work, headline
     from ..stages import SemanticsStageConfig
     from .common import cli_errors, config_from, progress_bars
@@ -46,3 +47,5 @@ def evaluate(work: Path, capture: Path | None, config_path: Path | None, **optio
     for line in headline(metrics):
         click.echo(line)
     click.echo(f"report: {work / 'report' / 'index.md'}")
+    for line in health_lines(metrics):
+        click.echo(line)

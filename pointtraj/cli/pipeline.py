@@ -153,9 +153,11 @@ def demo(
 
 
 def _headline(result) -> None:
-    """Print the report's main figures, if the evaluate stage wrote them."""
+    """Print the report's main figures and its health block, if the evaluate stage wrote
+    them."""
     import json
 
+    from ..evaluate.health import health_lines
     from ..evaluate.study import headline
 
     path = result.outputs.get("report")
@@ -169,3 +171,5 @@ def _headline(result) -> None:
     renders = result.outputs.get("renders")
     if renders is not None:
         click.echo(f"renders: {renders}")
+    for line in health_lines(metrics):  # last: what went wrong, if anything
+        click.echo(line)

@@ -86,7 +86,8 @@ def write_report(
     title : str
     sections : sequence of Section
     metrics : mapping
-        Flat ``{"dotted.key": number}`` figures.
+        Flat ``{"dotted.key": number}`` figures (a few are lists of strings, e.g.
+        ``health.warnings``).
 
     Returns
     -------

@@ -4,7 +4,10 @@
 :mod:`pointtraj.evaluate.validity` from a work folder (and its capture), and writes
 ``WORK/report/`` with :func:`pointtraj.evaluate.report.write_report`:
 
-* **summary**: trajectories, their lengths and density, reprojection errors;
+* **health** (first): cheap checks that warn when the figures below hide a failure
+  (:mod:`pointtraj.evaluate.health`, issue #17);
+* **summary**: trajectories, their lengths and density, reprojection errors by the number of
+  observing cameras (two-view ones marked unverifiable);
 * **ground truth** (synthetic captures only): 3D error against the rendered surface, and label
   accuracy (overall, per class, confusion) of the graph cut and of the argmax of each pooling;
 * **views** (synthetic captures only): the cameras that keep each point against those that
@@ -13,7 +16,8 @@
 * **affinity effectiveness** (the paper's Figure 6): label disagreement of neighbour pairs by
   distance, all ε_s-neighbours against SE(3)-affinity neighbours;
 * **predictive validity** (the paper's Figure 7): agreement with the recogniser in held-out
-  cameras against the number of labelling cameras, view against average pooling;
+  cameras against the number of labelling cameras, view against average pooling, with the
+  point-frames and trajectories it compared;
 * **timing** of every stage (``WORK/timings.json``).
 
 Every study is skipped, with a line in the report saying why, when its inputs are missing.
@@ -248,11 +252,14 @@ def _check_classes(labels_toml: Path, made: list[tuple[Path, Any]]) -> None:
 
 
 def _summary_section(traj, metrics: dict) -> Section:
+    from .health import UNVERIFIABLE_BINS, VIEW_BINS, observed_views
+
     lengths = traj.lengths
     frames = len(traj.occupied_frames)  # a reconstruction of frames A:B: only those count
     seconds = frames / traj.fps if traj.fps > 0 else float("nan")
     err = traj.reprojection_error
-    err = err[np.isfinite(err)]
+    finite = np.isfinite(err)
+    views, _ = observed_views(traj.visibility)  # (P,)
     metrics.update(
         {
             "trajectories.count": traj.num_trajectories,
@@ -265,10 +272,26 @@ def _summary_section(traj, metrics: dict) -> Section:
             "trajectories.length.median": _q(lengths, 50),
             "trajectories.length.p90": _q(lengths, 90),
             "trajectories.points_per_frame": traj.num_point_frames / max(frames, 1),
-            "reprojection_px.median": _q(err, 50),
-            "reprojection_px.p90": _q(err, 90),
+            "reprojection_px.median": _q(err[finite], 50),
+            "reprojection_px.p90": _q(err[finite], 90),
         }
     )
+    rows = []
+    for name, (lo, hi) in VIEW_BINS.items():
+        sel = (views >= lo) & (views <= hi)
+        e = err[sel & finite]
+        share = float(sel.mean()) if len(sel) else float("nan")
+        metrics[f"trajectories.views.{name}.share"] = share
+        metrics[f"reprojection_px.views.{name}.median"] = _q(e, 50)
+        metrics[f"reprojection_px.views.{name}.p90"] = _q(e, 90)
+        metrics[f"reprojection_px.views.{name}.support"] = int(sel.sum())
+        label = "at most 1" if name == "1" else name
+        note = {"1": " (unverifiable: one view)", "2": " (unverifiable: near 0 by construction)"}
+        note = note.get(name, " (unverifiable)") if name in UNVERIFIABLE_BINS else ""
+        rows.append(
+            f"| {label}{note} | {int(sel.sum())} ({_fmt(100 * share, 1)} %) | "
+            f"{_fmt(_q(e, 50), 2)} | {_fmt(_q(e, 90), 2)} |"
+        )
     body = (
         f"{traj.num_trajectories} trajectories ({metrics['trajectories.per_second']:.0f} per "
         f"second), {traj.num_point_frames} point-frames over {frames} frames "
@@ -278,13 +301,15 @@ def _summary_section(traj, metrics: dict) -> Section:
         f"| trajectory length (frames) | {_fmt(metrics['trajectories.length.p10'], 0)} | "
         f"{_fmt(metrics['trajectories.length.median'], 0)} | "
         f"{_fmt(metrics['trajectories.length.p90'], 0)} | "
-        f"{_fmt(metrics['trajectories.length.mean'], 1)} |\n"
-        f"| reprojection error (px) | {_fmt(_q(err, 10), 2)} | "
-        f"{_fmt(metrics['reprojection_px.median'], 2)} | "
-        f"{_fmt(metrics['reprojection_px.p90'], 2)} | "
-        f"{_fmt(float(err.mean()) if len(err) else float('nan'), 2)} |\n\n"
-        "The paper's trajectories are fragments too: they emerge and dissolve as points become "
-        "visible and are lost (its Section 5)."
+        f"{_fmt(metrics['trajectories.length.mean'], 1)} |\n\n"
+        "Reprojection error by the number of cameras that observe the point-frame. A point "
+        "seen by 2 cameras is triangulated exactly from them, so its error is near 0 whatever "
+        "its accuracy, and one seen by 1 has nothing to check it: only the rows of 3 and more "
+        "views verify anything.\n\n"
+        "| observed views | point-frames | median (px) | p90 (px) |\n|---|---|---|---|\n"
+        + "\n".join(rows)
+        + "\n\nThe paper's trajectories are fragments too: they emerge and dissolve as points "
+        "become visible and are lost (its Section 5)."
     )
     return Section("Trajectories", body)
 
@@ -299,14 +324,29 @@ def _ground_truth_section(
     rig = Capture.open(capture).rig.subset(traj.camera_names)
     step = _tick(progress, "evaluate: 3D error", traj.num_frames)
     err = surface_errors(capture, rig, traj, progress=step)
-    err = np.where(np.isnan(err), 1.0, err)  # no surface near the point: far off
-    metrics.update({"gt.error_m.median": _q(err, 50), "gt.error_m.p90": _q(err, 90)})
+    none = ~np.isfinite(err)  # no ground-truth surface near the point in any camera
+    err = err[~none]
+    metrics.update(
+        {
+            "gt.error_m.median": _q(err, 50),
+            "gt.error_m.p90": _q(err, 90),
+            "gt.error_m.support": int(len(err)),
+            "gt.no_surface": int(none.sum()),
+            "gt.no_surface.share": float(none.mean()) if len(none) else float("nan"),
+        }
+    )
     lines = [
         "3D error: the distance of every point-frame to the rendered ground-truth surface of "
-        "its frame (point to the plane of the depth map's 3x3 pixels around its projection in "
-        f"the cameras that see it): median **{_mm(metrics['gt.error_m.median'])} mm**, 90th "
-        f"percentile **{_mm(metrics['gt.error_m.p90'])} mm** "
-        "(the paper has no ground truth; our goals are 5 mm and 2 cm).",
+        "its frame, the smallest over the cameras it projects into (in each: to the patch of "
+        "the depth map's pixels on the surface where the point projects, among the 3x3 around "
+        "it, never across a silhouette; to the nearest of the 3x3 pixels where that is closer): "
+        f"median **{_mm(metrics['gt.error_m.median'])} mm**, 90th percentile "
+        f"**{_mm(metrics['gt.error_m.p90'])} mm** over {len(err)} point-frames "
+        "(the paper has no ground truth; our goals are 5 mm and 2 cm). "
+        f"{int(none.sum())} point-frames ({_fmt(100 * metrics['gt.no_surface.share'], 2)} %) "
+        "have no ground-truth surface in the 3x3 pixels around their projection in any "
+        "camera: they are far from every surface, and counted here instead of in the "
+        "percentiles.",
         "",
     ]
     fg = truth >= 0
@@ -584,6 +624,7 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
         visibility=visibility,
     )
     counts = camera_counts(len(rig))
+    support: dict[int, dict[str, int]] = {}
     res = predictive_validity(
         samples,
         semantics_cfg.eps_e,
@@ -591,6 +632,7 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
         counts=counts,
         draws=cfg.validity_draws,
         seed=cfg.seed,
+        support=support,
     )
     rows = ["| cameras used | " + " | ".join(str(n) for n in counts) + " |"]
     rows.append("|---|" + "---|" * len(counts))
@@ -598,6 +640,31 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
         rows.append(f"| {p} pooling | " + " | ".join(_fmt(d[n], 3) for n in counts) + " |")
         for n in counts:
             metrics[f"validity.{p}.{n}cams"] = d[n]
+    sampled_pf, sampled_tracks = len(samples.track), len(np.unique(samples.track))
+    rows.append(
+        "| point-frames compared | "
+        + " | ".join(str(support[n]["point_frames"]) for n in counts)
+        + " |"
+    )
+    rows.append(
+        "| trajectories compared (%) | "
+        + " | ".join(
+            _fmt(100 * support[n]["trajectories"] / max(sampled_tracks, 1), 1) for n in counts
+        )
+        + " |"
+    )
+    top = support[counts[-1]]
+    metrics.update(
+        {
+            "validity.support.point_frames": top["point_frames"],
+            "validity.support.trajectories": top["trajectories"],
+            "validity.support.comparisons": top["comparisons"],
+            "validity.support.sampled_point_frames": sampled_pf,
+            "validity.support.sampled_trajectories": sampled_tracks,
+            "validity.support.share": top["trajectories"] / max(sampled_tracks, 1),
+            "validity.support.all_trajectories": traj.num_trajectories,
+        }
+    )
     plot_validity(
         counts, {f"{p} pooling": [res[p][n] for n in counts] for p in res}, folder / "validity.png"
     )
@@ -606,10 +673,16 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
             "Each held-out camera in turn: label the trajectories (argmax of the pooled, "
             "time-averaged confidences) from n other cameras, project them into the held-out "
             "camera, and count how often the label agrees with the recogniser there "
-            f"({len(samples.track)} point-frames of {len(np.unique(samples.track))} trajectories, "
+            f"({sampled_pf} point-frames of {sampled_tracks} trajectories sampled, of "
+            f"{traj.num_trajectories}; "
             f"{'every frame' if stride == 1 else f'one frame in {stride}'}, "
             f"{cfg.validity_draws} random camera subsets per size). "
-            "No ground truth is used.",
+            "No ground truth is used. A sample is compared only where the held-out camera sees "
+            "the point and its recogniser finds a class there, and every pooling labels the "
+            "trajectory: the last rows say how many were, a figure on few of them says little. "
+            f"With {counts[-1]} cameras: {top['point_frames']} point-frames of "
+            f"{top['trajectories']} trajectories "
+            f"(**{_fmt(100 * metrics['validity.support.share'], 1)} %** of those sampled).",
             "",
             *rows,
             "",
@@ -617,6 +690,93 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
         ]
     )
     return Section("Predictive validity", body, ["validity.png"])
+
+
+def _reconstruct_config(wf: WorkFolder):
+    """The reconstruction's parameters from ``work.toml`` (None: none recorded, or unreadable)."""
+    from ..config import from_mapping
+    from ..reconstruct.config import ReconstructConfig
+
+    table = wf.read_toml().get("reconstruct")
+    if not isinstance(table, dict):
+        return None
+    try:
+        return from_mapping(ReconstructConfig, table, where=f"{wf.work_toml} [reconstruct]")
+    except (ValueError, TypeError) as exc:  # a work folder of another version
+        logger.info("health: connectivity check skipped (%s)", exc)
+        return None
+
+
+def _health_section(wf: WorkFolder, cap: Path, traj, labels, metrics: dict) -> Section:
+    """The health block (:mod:`pointtraj.evaluate.health`): warnings first, then the figures."""
+    from ..session import Capture
+    from .health import HealthThresholds, check_health, health_warnings, known_floor
+
+    th = HealthThresholds()
+    rig = Capture.open(cap).rig.subset(traj.camera_names)
+    rc = _reconstruct_config(wf)
+    metrics.update(check_health(traj, rig, cap, rc, labels, th))
+    warnings = health_warnings(metrics, th)
+    metrics["health.warnings"] = warnings
+    for w in warnings:
+        logger.warning("health: %s", w)
+    m = metrics.get
+    lines = (
+        [f"- **warning**: {w}" for w in warnings]
+        if warnings
+        else ["No warnings: none of the checks below is past its threshold."]
+    )
+    rows = [
+        "| check | value | warns when |",
+        "|---|---|---|",
+        f"| points per frame | {_fmt(m('health.points_per_frame'), 0)} | "
+        f"< {th.points_per_frame:g} |",
+        f"| point-frames seen by at most 2 cameras | "
+        f"{_fmt(100 * m('health.two_view_share'), 1)} % | > {100 * th.two_view_share:g} % |",
+    ]
+    if "health.pairs.kept" in metrics:
+        rows.append(
+            f"| camera pairs matched, of those within 90 degrees (of all) | "
+            f"{m('health.pairs.kept')} of {m('health.pairs.near')} ({m('health.pairs.all')}) | "
+            f"< {100 * th.pairs_kept_share:g} % |"
+        )
+    else:
+        rows.append("| camera pairs matched | n/a (no reconstruction parameters) | |")
+    rows.append(
+        f"| least-used camera: share of point-frames it observes | "
+        f"{_fmt(100 * m('health.camera_share.min'), 1)} % | < {100 * th.camera_share:g} % |"
+    )
+    if "health.below_floor_share" in metrics:
+        rows.append(
+            f"| point-frames more than {100 * th.below_floor_m:g} cm below the floor (z = 0) | "
+            f"{_fmt(100 * m('health.below_floor_share'), 2)} % | "
+            f"> {100 * th.below_floor_share:g} % |"
+        )
+    elif known_floor(cap) is None:
+        rows.append("| points below the floor | n/a (the rig names no floor) | |")
+    if "health.labelled_share" in metrics:
+        rows.append(
+            f"| trajectories on a labelled class; labelled points per frame | "
+            f"{_fmt(100 * m('health.labelled_share'), 1)} %; "
+            f"{_fmt(m('health.labelled_per_frame'), 0)} | < {100 * th.labelled_share:g} %; "
+            f"< {th.labelled_per_frame:g} |"
+        )
+    if "validity.support.share" in metrics:
+        rows.append(
+            f"| predictive validity: sampled trajectories compared | "
+            f"{_fmt(100 * m('validity.support.share'), 1)} % | < {100 * th.validity_share:g} % |"
+        )
+    body = "\n".join(
+        [
+            *lines,
+            "",
+            "Cheap checks of what can go wrong unseen (thresholds: "
+            "`pointtraj.evaluate.health.HealthThresholds`):",
+            "",
+            *rows,
+        ]
+    )
+    return Section("Health", body)
 
 
 def _timing_section(wf: WorkFolder, metrics: dict) -> Section:
@@ -768,8 +928,9 @@ def evaluate_work(
         except ValidationError as exc:
             notes.append(f"Predictive validity skipped: {exc}")
     sections.append(_timing_section(wf, metrics))
+    sections.insert(0, _health_section(wf, Path(cap), traj, labels, metrics))
     if notes:
-        sections.insert(1, Section("Notes", "\n".join(f"- {n}" for n in notes)))
+        sections.insert(2, Section("Notes", "\n".join(f"- {n}" for n in notes)))
     write_report(folder, title or f"pointtraj report: {wf.path.name}", sections, metrics)
     logger.info("wrote %s", folder / "index.md")
     return metrics
@@ -809,9 +970,11 @@ def headline(metrics: dict[str, Any]) -> list[str]:
             f"(median length {_fmt(m('trajectories.length.median'), 0)} frames)"
         )
     if m("gt.error_m.median") is not None:
+        none = m("gt.no_surface")
         out.append(
             f"3D error vs ground truth: median {_mm(m('gt.error_m.median'))} mm, "
             f"p90 {_mm(m('gt.error_m.p90'))} mm"
+            + (f" ({none} point-frames with no surface near, left out)" if none else "")
         )
     acc = [
         f"{name} {_fmt(100 * m(f'gt.accuracy.{key}'), 1)} %"
@@ -833,9 +996,21 @@ def headline(metrics: dict[str, Any]) -> list[str]:
                 f"temporal consistency, {p} pooling: "
                 + ", ".join(f"{_fmt(v, 2)} at {lag}" for lag, v in nc)
             )
-    counts = sorted({int(k.rsplit(".", 1)[1][:-4]) for k in metrics if k.startswith("validity.")})
+    counts = sorted(
+        {
+            int(k.rsplit(".", 1)[1][:-4])
+            for k in metrics
+            if k.startswith("validity.") and k.endswith("cams")
+        }
+    )
     if counts:
         top = counts[-1]
+        support = ""
+        if m("validity.support.point_frames") is not None:
+            support = (
+                f" (on {m('validity.support.point_frames')} point-frames, "
+                f"{_fmt(100 * m('validity.support.share'), 0)} % of the sampled trajectories)"
+            )
         out.append(
             f"predictive validity with {top} cameras: "
             + ", ".join(
@@ -843,5 +1018,6 @@ def headline(metrics: dict[str, Any]) -> list[str]:
                 for p in ("view", "average")
                 if f"validity.{p}.{top}cams" in metrics
             )
+            + support
         )
     return out

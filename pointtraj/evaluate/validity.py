@@ -181,6 +181,7 @@ def predictive_validity(
     held_out: Sequence[int] | None = None,
     draws: int = 3,
     seed: int = 0,
+    support: dict[int, dict[str, int]] | None = None,
 ) -> dict[str, dict[int, float]]:
     """Agreement of labels from n cameras with the recognition in a held-out camera.
 
@@ -199,6 +200,12 @@ def predictive_validity(
     draws : int
         Random camera subsets per (held-out camera, count).
     seed : int
+    support : dict, optional
+        Filled with what each figure rests on: ``support[n]`` = ``{"point_frames": distinct
+        samples compared at least once, "trajectories": their distinct trajectories,
+        "comparisons": (sample, held-out camera, draw) comparisons, the figure's denominator}``.
+        A figure is computed only where the held-out camera sees the point and recognises a
+        class there, and every pooling labels it, so it can rest on a small part of the samples.
 
     Returns
     -------
@@ -222,6 +229,7 @@ def predictive_validity(
     for n in counts:
         hits = dict.fromkeys(poolings, 0.0)
         total = dict.fromkeys(poolings, 0.0)
+        compared = np.zeros(len(samples.track), bool)  # (S,) compared at least once
         for h in held_out:
             evaluate = (samples.V[:, h] > eps_e) & (samples.observed[:, h] >= 0)
             if not evaluate.any():
@@ -246,9 +254,16 @@ def predictive_validity(
                 # Compare the poolings on the same samples: those every pooling labels (a
                 # pooling that keeps only visible cameras labels fewer trajectories).
                 both = np.all([pred[p] >= 0 for p in poolings], axis=0)
+                compared[np.flatnonzero(evaluate)[both]] = True
                 for p in poolings:
                     hits[p] += float(np.sum(pred[p][both] == obs[both]))
                     total[p] += float(both.sum())
         for p in poolings:
             out[p][n] = hits[p] / total[p] if total[p] else float("nan")
+        if support is not None:
+            support[n] = {
+                "point_frames": int(compared.sum()),
+                "trajectories": int(len(np.unique(samples.track[compared]))),
+                "comparisons": int(next(iter(total.values()), 0.0)),
+            }
     return out

@@ -26,7 +26,7 @@ and per camera a depth map (``gt/depth``). The definitions (issue #20):
   consecutive audited frames in which it is truly visible in >= 2 cameras.
 * **3D error** of actor point-frames
   (:func:`pointtraj.evaluate.groundtruth.surface_errors`), split by the number of observed
-  views (2, 3, 4+).
+  views (2, 3, 4+); point-frames with no ground-truth surface near them are counted apart.
 
 The 1 cm depth test is strict on sloped surfaces at coarse resolutions: the pixel centre's ray
 meets the surface up to a pixel away from the sample (7 mm at 2.8 m for f = 380 px), which is why
@@ -256,7 +256,10 @@ class ViewAudit:
         but not truly visible; truly visible but not flagged.
     errors : dict of str to (n,) float64 ndarray
         3D error (m) of actor point-frames by observed views (``"2"``, ``"3"``, ``"4+"``); empty
-        when not measured. NaN errors (no surface near) count as 1 m, as in the report.
+        when not measured. Point-frames with no ground-truth surface near them are left out
+        and counted in ``no_surface``.
+    no_surface : dict of str to int
+        Actor point-frames by observed views whose 3D error has no surface to measure to.
     radius, depth_tol, visibility_threshold : float
         The settings.
     frames : int
@@ -279,6 +282,7 @@ class ViewAudit:
     flag_only: int = 0
     true_only: int = 0
     errors: dict[str, np.ndarray] = field(default_factory=dict)
+    no_surface: dict[str, int] = field(default_factory=dict)
     radius: float = 0.03
     depth_tol: float = 0.01
     visibility_threshold: float = 0.05
@@ -344,6 +348,7 @@ class ViewAudit:
             m[f"gt.views.error_m.{name}.median"] = _median(err)
             m[f"gt.views.error_m.{name}.p90"] = _percentile(err, 90)
             m[f"gt.views.error_m.{name}.support"] = len(err)
+            m[f"gt.views.error_m.{name}.no_surface"] = self.no_surface.get(name, 0)
         return m
 
 
@@ -366,11 +371,11 @@ class _Runs:
 
 
 def _frame_errors(capture: Path, rig, trajectories: Trajectories, t: int) -> np.ndarray:
-    """(N_t,) 3D error of frame ``t``'s point-frames (NaN -> 1 m), in ``frame_rows`` order."""
+    """(N_t,) 3D error of frame ``t``'s point-frames (NaN: no surface near), in ``frame_rows``
+    order."""
     from .groundtruth import surface_errors
 
-    err = surface_errors(capture, rig, trajectories, frames=range(t, t + 1))
-    return np.where(np.isnan(err), 1.0, err)
+    return surface_errors(capture, rig, trajectories, frames=range(t, t + 1))
 
 
 def view_audit(
@@ -447,7 +452,9 @@ def view_audit(
                 err = _frame_errors(capture, rig, trajectories, t)[actor]
                 n_obs = observed[actor].sum(axis=1)
                 for name, (lo, hi) in VIEW_BUCKETS.items():
-                    err_parts[name].append(err[(n_obs >= lo) & (n_obs <= hi)])
+                    e = err[(n_obs >= lo) & (n_obs <= hi)]
+                    err_parts[name].append(e[np.isfinite(e)])
+                    audit.no_surface[name] = audit.no_surface.get(name, 0) + int(np.isnan(e).sum())
         if progress is not None:
             progress(1)
     actor_tracks = (alive > 0) & (2 * on_actor > alive)

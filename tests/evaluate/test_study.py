@@ -50,6 +50,14 @@ def test_evaluate_writes_the_report(gt_work):
     # Ground-truth trajectories lie on the surface: what is left is the depth maps' own
     # sampling (a pixel is 12 mm wide at this 320x256 rig's distance).
     assert metrics["gt.error_m.median"] < 0.003
+    # Every ground-truth point lies on a surface: none is left out of the 3D error.
+    assert metrics["gt.no_surface"] == 0
+    assert metrics["gt.error_m.support"] == metrics["trajectories.point_frames"]
+    assert saved["health.warnings"] == metrics["health.warnings"]
+    assert (
+        sum(metrics[f"reprojection_px.views.{v}.support"] for v in ("1", "2", "3", "4+"))
+        == metrics["trajectories.point_frames"]
+    )
     # 15 classes, and 40x32-cell recognition maps at this size: far above chance (1/15).
     assert metrics["gt.accuracy.graphcut"] > 0.45
     assert metrics["gt.accuracy.view_argmax"] > 0.45

@@ -61,6 +61,30 @@ def test_view_pooling_beats_average_under_occlusion():
     assert res["average"][11] < 0.3  # the occluder's label wins the unweighted mean
 
 
+def test_predictive_validity_reports_its_support():
+    """Issue #17: a figure computed on a few samples must say so."""
+    s = occluded_samples()
+    support: dict = {}
+    res = predictive_validity(s, eps_e=0.1, counts=[1, 11], draws=2, support=support)
+    assert set(support) == {1, 11}
+    held_out = np.unique(np.linspace(0, 11, 8).round().astype(int))
+    # With all 11 other cameras a sample is compared where the held-out camera sees it and
+    # another camera does too (view pooling labels nothing else).
+    seen = s.V > 0.1  # (S, C)
+    compared = np.zeros(len(s.track), bool)
+    comparisons = 0
+    for h in held_out:
+        ok = seen[:, h] & np.delete(seen, h, axis=1).any(axis=1)
+        compared |= ok
+        comparisons += int(ok.sum())
+    assert support[11]["point_frames"] == compared.sum()
+    assert support[11]["trajectories"] == len(np.unique(s.track[compared]))
+    assert support[11]["comparisons"] == comparisons
+    assert support[1]["point_frames"] <= support[11]["point_frames"]
+    # The figures themselves do not change.
+    assert res == predictive_validity(s, eps_e=0.1, counts=[1, 11], draws=2)
+
+
 def test_camera_counts():
     assert camera_counts(2) == [1]
     assert camera_counts(12) == [1, 2, 5, 10, 11]

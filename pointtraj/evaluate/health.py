@@ -1,0 +1,321 @@
+"""The health of a run: cheap checks that say when the figures of a report hide a failure (#17).
+
+A reconstruction can fail quietly: a rig whose camera pairs the connectivity drops, points
+seen by two cameras only (whose reprojection error is near 0 by construction, so it verifies
+nothing), points under the floor, a labelling that puts almost nothing on the classes. Each
+check here turns one such symptom into a figure and, past its threshold, a one-line warning.
+:func:`check_health` gathers the figures of a work folder; :func:`health_warnings` compares
+figures with :class:`HealthThresholds` (every threshold lives there). The report puts the
+warnings at its top (``report/index.md``, ``metrics.json`` ``health.warnings``), the library
+logs them, and ``pointtraj run`` / ``demo`` print them last.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "HealthThresholds",
+    "VIEW_BINS",
+    "observed_views",
+    "pair_counts",
+    "known_floor",
+    "check_health",
+    "health_warnings",
+    "health_lines",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Buckets of observed views per point-frame: label -> (lowest, highest) view count. A point
+#: seen by at most 2 cameras is triangulated exactly from them, so its reprojection error says
+#: nothing about its accuracy.
+VIEW_BINS = {"1": (0, 1), "2": (2, 2), "3": (3, 3), "4+": (4, 1 << 30)}
+
+#: The view buckets whose reprojection error verifies nothing: one view, or two (near 0 by
+#: construction).
+UNVERIFIABLE_BINS = ("1", "2")
+
+#: The paper's connectivity rule: cameras whose optical axes are more than this apart are
+#: unlikely to match (its Section 5), so such pairs are not counted as dropped.
+PAPER_MAX_ANGLE_DEG = 90.0
+
+#: Point-frames per chunk of the passes over a store (bounded memory).
+_CHUNK = 1 << 20
+
+
+@dataclass(frozen=True)
+class HealthThresholds:
+    """Every threshold of the health checks, in one place.
+
+    Attributes
+    ----------
+    two_view_share : float
+        Warn when more than this share of the point-frames is observed in at most 2 cameras.
+    pairs_kept_share : float
+        Warn when the connectivity graph keeps less than this share of the camera pairs whose
+        optical axes are within 90 degrees (the paper's rule; thinning by
+        ``max_pairs_per_camera`` is a choice and is not counted).
+    camera_share : float
+        Warn about each camera that observes less than this share of the point-frames.
+    below_floor_m : float
+        A point-frame is below the floor when it lies more than this under it (metres; only where
+        the floor is known, :func:`known_floor`).
+    below_floor_share : float
+        Warn when more than this share of the point-frames is below the floor.
+    labelled_share : float
+        Warn when less than this share of the trajectories gets one of the label set's classes
+        from the graph cut ...
+    labelled_per_frame : float
+        ... or fewer than this many labelled points per frame.
+    validity_share : float
+        Warn when predictive validity compares less than this share of the trajectories it
+        sampled (with the most labelling cameras).
+    points_per_frame : float
+        Warn when the reconstruction has fewer points per frame.
+    """
+
+    two_view_share: float = 0.5
+    pairs_kept_share: float = 0.5
+    camera_share: float = 0.01
+    below_floor_m: float = 0.05
+    below_floor_share: float = 0.01
+    labelled_share: float = 0.05
+    labelled_per_frame: float = 20.0
+    validity_share: float = 0.2
+    points_per_frame: float = 50.0
+
+
+def observed_views(visibility: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Observed views per point-frame and per camera, in bounded memory.
+
+    A view is observed where the stored visibility reaches
+    :data:`pointtraj.trajectories.OBSERVED_MIN` (:func:`pointtraj.trajectories.view_counts`).
+
+    Parameters
+    ----------
+    visibility : (P, C) uint8 ndarray
+
+    Returns
+    -------
+    per_point : (P,) int64 ndarray
+    per_camera : (C,) int64 ndarray
+        Point-frames each camera observes.
+    """
+    from ..trajectories import OBSERVED_MIN, view_counts
+
+    P, C = visibility.shape
+    per_point = np.zeros(P, np.int64)
+    per_camera = np.zeros(C, np.int64)
+    for a in range(0, P, _CHUNK):
+        v = visibility[a : a + _CHUNK]
+        per_point[a : a + len(v)] = view_counts(v)
+        per_camera += np.count_nonzero(v >= OBSERVED_MIN, axis=0)
+    return per_point, per_camera
+
+
+def pair_counts(rig, max_angle_deg: float) -> dict[str, int]:
+    """The camera pairs that the reconstruction matches, against those it could.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        The reconstructed cameras.
+    max_angle_deg : float
+        The reconstruction's ``max_angle_deg``.
+
+    Returns
+    -------
+    dict
+        ``all``: C (C - 1) / 2; ``near``: pairs whose optical axes are within 90 degrees (the
+        paper's rule); ``kept``: the connectivity graph's pairs
+        (:func:`pointtraj.reconstruct.track.select_edges` without the per-camera thinning).
+    """
+    from ..geometry import axis_angles
+    from ..reconstruct.track import select_edges
+
+    C = len(rig)
+    i, j = np.triu_indices(C, 1)
+    near = int((axis_angles(rig)[i, j] <= PAPER_MAX_ANGLE_DEG + 1e-9).sum()) if C > 1 else 0
+    kept = len(select_edges(rig, max_angle_deg, 0)) if C > 1 else 0
+    return {"all": int(len(i)), "near": near, "kept": kept}
+
+
+def known_floor(capture: str | os.PathLike) -> tuple[np.ndarray, float] | None:
+    """The floor of a capture, where it is known.
+
+    Only synthetic captures (``gt/synth.toml``) have a known floor: their world is z-up with the
+    floor at z = 0. A real rig's files name no floor, so none is assumed.
+
+    Returns
+    -------
+    (up (3,) float ndarray, height float) or None
+    """
+    if (Path(capture) / "gt" / "synth.toml").is_file():
+        return np.array([0.0, 0.0, 1.0]), 0.0
+    return None
+
+
+def _share(num: float, den: float) -> float:
+    return float(num) / float(den) if den else float("nan")
+
+
+def check_health(
+    trajectories,
+    rig,
+    capture: str | os.PathLike | None,
+    reconstruct_config=None,
+    labels=None,
+    thresholds: HealthThresholds | None = None,
+) -> dict[str, Any]:
+    """The health figures of a reconstruction (and its labels).
+
+    Parameters
+    ----------
+    trajectories : Trajectories
+    rig : CameraRig
+        The store's cameras, in its order.
+    capture : path-like, optional
+        The capture (for :func:`known_floor`).
+    reconstruct_config : ReconstructConfig, optional
+        The reconstruction's parameters (``work.toml``); without them (ground-truth
+        trajectories) the connectivity check is skipped.
+    labels : TrajectoryLabels, optional
+        The graph cut's labels.
+    thresholds : HealthThresholds, optional
+
+    Returns
+    -------
+    dict
+        Flat ``health.*`` figures (see ``data_specs/report.md``).
+    """
+    th = thresholds or HealthThresholds()
+    P = trajectories.num_point_frames
+    frames = max(len(trajectories.occupied_frames), 1)
+    m: dict[str, Any] = {
+        "health.point_frames": P,
+        "health.points_per_frame": P / frames,
+    }
+    n, seen = observed_views(trajectories.visibility)
+    m["health.two_view_share"] = _share(int((n <= 2).sum()), P)
+    m["health.camera_share.min"] = _share(int(seen.min()) if len(seen) else 0, P)
+    m["health.cameras_unused"] = [
+        name for name, s in zip(trajectories.camera_names, seen) if _share(s, P) < th.camera_share
+    ]
+    if reconstruct_config is not None:
+        pairs = pair_counts(rig, reconstruct_config.max_angle_deg)
+        m.update({f"health.pairs.{k}": v for k, v in pairs.items()})
+    floor = known_floor(capture) if capture is not None else None
+    if floor is not None and P:
+        up, height = floor
+        below = 0
+        for a in range(0, P, _CHUNK):
+            h = trajectories.xyz[a : a + _CHUNK].astype(np.float64) @ up
+            below += int((h < height - th.below_floor_m).sum())
+        m["health.below_floor_share"] = _share(below, P)
+    if labels is not None and len(labels.labels) == trajectories.num_trajectories:
+        on = np.asarray(labels.labels) >= 0  # (M,)
+        m["health.labelled_share"] = _share(int(on.sum()), trajectories.num_trajectories)
+        m["health.labelled_per_frame"] = float(trajectories.lengths[on].sum()) / frames
+    return m
+
+
+def health_warnings(
+    metrics: dict[str, Any], thresholds: HealthThresholds | None = None
+) -> list[str]:
+    """One line per check past its threshold.
+
+    Parameters
+    ----------
+    metrics : dict
+        The report's flat metrics: the ``health.*`` figures of :func:`check_health` and
+        ``validity.support.share`` when predictive validity ran.
+    thresholds : HealthThresholds, optional
+
+    Returns
+    -------
+    list of str
+        Empty when all is well.
+    """
+    th = thresholds or HealthThresholds()
+
+    def get(key: str) -> float:
+        v = metrics.get(key)
+        return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else float("nan")
+
+    out = []
+    ppf = get("health.points_per_frame")
+    if ppf < th.points_per_frame:
+        out.append(
+            f"only {ppf:.0f} points per frame (fewer than {th.points_per_frame:g}): the "
+            "reconstruction found little to track"
+        )
+    two = get("health.two_view_share")
+    if two > th.two_view_share:
+        out.append(
+            f"{100 * two:.1f} % of the point-frames are seen by at most 2 cameras: their "
+            "reprojection error is near 0 by construction and verifies nothing"
+        )
+    kept, near = get("health.pairs.kept"), get("health.pairs.near")
+    if near > 0 and kept < th.pairs_kept_share * near:
+        out.append(
+            f"the connectivity kept {kept:.0f} of the {near:.0f} camera pairs within 90 degrees "
+            "of each other: most of the rig is never matched (check the capture volume and "
+            "`[reconstruct] max_angle_deg`)"
+        )
+    unused = metrics.get("health.cameras_unused") or []
+    if unused:
+        out.append(
+            f"cameras {', '.join(unused)} observe under {100 * th.camera_share:g} % of the "
+            "point-frames"
+        )
+    below = get("health.below_floor_share")
+    if below > th.below_floor_share:
+        out.append(
+            f"{100 * below:.1f} % of the point-frames lie more than "
+            f"{100 * th.below_floor_m:g} cm below the floor"
+        )
+    share, per_frame = get("health.labelled_share"), get("health.labelled_per_frame")
+    if share < th.labelled_share or per_frame < th.labelled_per_frame:
+        out.append(
+            f"few points on the labelled classes: {100 * share:.1f} % of the trajectories, "
+            f"{per_frame:.0f} points per frame"
+        )
+    vshare = get("validity.support.share")
+    if vshare < th.validity_share:
+        out.append(
+            f"predictive validity compares only {100 * vshare:.1f} % of the sampled "
+            f"trajectories ({metrics.get('validity.support.point_frames')} point-frames): "
+            "its figures rest on few points"
+        )
+    return out
+
+
+def health_lines(metrics: dict[str, Any]) -> list[str]:
+    """The health block for the end of ``pointtraj run`` / ``demo`` / ``evaluate``.
+
+    Parameters
+    ----------
+    metrics : dict
+        ``metrics.json`` of a report.
+
+    Returns
+    -------
+    list of str
+        ``health: no warnings``, or a count and one ``  warning: ...`` line each; empty for a
+        report of an older version (no ``health.warnings``).
+    """
+    warnings = metrics.get("health.warnings")
+    if warnings is None:
+        return []
+    if not warnings:
+        return ["health: no warnings"]
+    n = len(warnings)
+    return [f"health: {n} warning{'s' if n > 1 else ''}"] + [f"  warning: {w}" for w in warnings]
