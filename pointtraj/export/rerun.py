@@ -523,29 +523,6 @@ def _log_image(
     )
 
 
-def _load_instances(path: Path, M: int) -> np.ndarray | None:
-    """The optional ``instance`` (M,) array of ``labels.npz`` (None where it has none).
-
-    Raises
-    ------
-    FileFormatError
-        If it has the wrong shape or values below -1.
-    """
-    from ..npzfile import load_npz
-
-    arrays = load_npz(path, (), "a labels file", keys=("instance",))
-    if "instance" not in arrays:
-        return None
-    inst = np.asarray(arrays["instance"])
-    if inst.shape != (M,) or not np.issubdtype(inst.dtype, np.integer):
-        raise FileFormatError(
-            path, f"instance: expected ({M},) integers, got {inst.shape} {inst.dtype}"
-        )
-    if M and inst.min() < -1:
-        raise FileFormatError(path, "instance: values must be -1 (no person) or >= 0")
-    return inst.astype(np.int64)
-
-
 def export_rerun(
     work: str | os.PathLike,
     out: str | os.PathLike | None = None,
@@ -596,7 +573,6 @@ def export_rerun(
         raise FileFormatError(wf.path, "work folder does not exist")
     res = load(wf.path)
     traj = res.trajectories
-    M = traj.num_trajectories
 
     capture = None
     try:
@@ -629,7 +605,7 @@ def export_rerun(
         if capture is not None and capture.labels_path is not None:
             label_set = LabelSet.load(capture.labels_path)
         palette = class_palette(res.class_names, label_set)
-    instance = _load_instances(wf.labels, M) if wf.labels.is_file() else None
+    instance = res.labels.instance if res.labels is not None else None
 
     confidences = None
     smap = res.semantic_map
