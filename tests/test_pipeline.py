@@ -67,6 +67,7 @@ def test_run_makes_every_output(tiny_run):
         "semantics",
         "affinity",
         "label",
+        "segments",
         "evaluate",
         "render",
     }
@@ -97,16 +98,16 @@ def test_run_makes_every_output(tiny_run):
 def test_rerun_skips_and_parameter_change_reruns_dependants(tiny_run, tmp_path):
     path, config, _ = tiny_run
     again = run_pipeline(config)
-    assert again.ran == [] and len(again.skipped) == 7
+    assert again.ran == [] and len(again.skipped) == 8
     labels_before = (config.work / "labels.npz").stat().st_mtime_ns
     changed = dataclasses.replace(config, affinity=dataclasses.replace(config.affinity, tau=0.05))
     res = run_pipeline(changed)
-    assert res.ran == ["affinity", "label", "evaluate", "render"]
+    assert res.ran == ["affinity", "label", "segments", "evaluate", "render"]
     assert res.skipped == ["capture", "trajectories", "semantics"]
     assert (config.work / "labels.npz").stat().st_mtime_ns != labels_before
     forced = run_pipeline(changed, force=["semantics"])
     # affinity does not read the semantic map
-    assert forced.ran == ["semantics", "label", "evaluate", "render"]
+    assert forced.ran == ["semantics", "label", "segments", "evaluate", "render"]
 
 
 def test_interrupted_reconstruction_resumes(tmp_path):

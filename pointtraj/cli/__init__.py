@@ -33,6 +33,7 @@ COMMANDS: dict[str, str] = {
     "render": "pointtraj.cli.render:render",
     "evaluate": "pointtraj.cli.evaluate:evaluate",
     "export": "pointtraj.cli.export:export",
+    "segments": "pointtraj.cli.segments:segments",
 }
 
 
