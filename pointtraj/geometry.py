@@ -298,6 +298,7 @@ def ransac_rigid_groups(
     rng: np.random.Generator,
     min_inliers: int = 3,
     refinements: int = 2,
+    score_points: int | None = 2000,
 ) -> RansacFit:
     """RANSAC rigid fits ``dst ≈ R src + t`` of G ragged point groups, vectorised over groups.
 
@@ -305,7 +306,8 @@ def ransac_rigid_groups(
     alignment :func:`rotation_from_triads`, as the affinity's local fits use); hypotheses are
     scored by MSAC (the sum of ``min(r², threshold²)`` over the group), the best is refitted on
     its inliers by :func:`fit_rigid_groups`, and the inliers are re-selected and refitted
-    ``refinements`` times. Points are scored one hypothesis at a time, so memory is O(N + G H).
+    ``refinements`` times. Points are scored one hypothesis at a time, so memory is O(N + G H),
+    and on at most ``score_points`` per group, so time is O(G H score_points + N).
 
     Parameters
     ----------
@@ -325,6 +327,9 @@ def ransac_rigid_groups(
         Fewest inliers (and pairs) a group needs for a transform (at least 3).
     refinements : int
         Inlier re-selections after the first refit.
+    score_points : int or None
+        Score the hypotheses on at most this many random members of each group (None: all);
+        the refits use every member.
 
     Returns
     -------
@@ -368,10 +373,18 @@ def ransac_rigid_groups(
     i1, i2, i3 = (order[np.minimum(starts[:, None] + k, N - 1)] for k in (k1, k2, k3))
     Rh = rotation_from_triads(a[i2] - a[i1], a[i3] - a[i1], b[i2] - b[i1], b[i3] - b[i1])
     th = b[i1] - np.einsum("ghij,ghj->ghi", Rh, a[i1])  # (G, H, 3)
+    # hypotheses are scored on at most score_points random members of each group
+    sub = np.arange(N)
+    if score_points is not None and counts.max() > score_points:
+        pos = np.empty(N, dtype=np.int64)
+        shuffled = order[np.lexsort((rng.random(N), g[order]))]  # by group, random within
+        pos[shuffled] = np.arange(N) - starts[g[shuffled]]  # rank within its group
+        sub = np.flatnonzero(pos < score_points)
+    a_s, b_s, g_s = a[sub], b[sub], g[sub]
     cost = np.zeros((G, H))
     for h in range(H):  # one hypothesis at a time over all points: O(N) memory
-        r = b - np.einsum("nij,nj->ni", Rh[g, h], a) - th[g, h]  # (N, 3)
-        cost[:, h] = np.bincount(g, weights=np.minimum(squared_norm(r), thr2), minlength=G)
+        r = b_s - np.einsum("nij,nj->ni", Rh[g_s, h], a_s) - th[g_s, h]  # (N', 3)
+        cost[:, h] = np.bincount(g_s, weights=np.minimum(squared_norm(r), thr2), minlength=G)
     best = cost.argmin(axis=1)  # (G,)
     gi = np.arange(G)
     R, t = Rh[gi, best], th[gi, best]  # (G, 3, 3), (G, 3)

@@ -260,3 +260,45 @@ def test_bad_inputs_name_the_problem(tmp_path):
     np.savez(tmp_path / "old.npz", format_version=np.int64(99))
     with pytest.raises(FileFormatError, match="old.npz"):
         load_segments(tmp_path / "old.npz")
+
+
+def test_draw_segments_marks_joints_and_axes():
+    """The overlay draws a yellow disc at the projected joint and the axes in their colours."""
+    from pointtraj.render.overlay import AXIS_COLORS, JOINT_COLOR, draw_segments
+    from pointtraj.synth.presets import make_rig
+
+    rng = np.random.default_rng(9)
+    traj, lab, _, truth = _two_parts(rng, T=20, n=30, split=False)
+    traj.xyz = traj.xyz - np.array([0.0, 0.0, -0.2], np.float32)  # in front of the ring's cameras
+    seg = compute_segments(traj, lab, LABELS, config=SegmentsConfig(min_frames=5))
+    camera = make_rig("tiny4")[0]
+    blank = np.full((camera.size[1], camera.size[0], 3), 255, np.uint8)
+    t = 7
+    out = draw_segments(blank, camera, seg, t, radius=3)
+    assert out.shape == blank.shape and (blank == 255).all()  # the input is not modified
+    joint = seg.joint_positions()[0, t]
+    proj = camera.project(joint[None])
+    u, v = np.rint(proj[0][0]).astype(int)
+    np.testing.assert_array_equal(out[v, u], JOINT_COLOR)
+    for color in AXIS_COLORS:  # every axis colour appears (anti-aliased lines: near it)
+        assert (np.abs(out.astype(int) - color).sum(axis=2) < 60).any()
+    # a frame without any pose draws nothing
+    seg.rotation[:, t] = np.nan
+    seg.translation[:, t] = np.nan
+    assert (draw_segments(blank, camera, seg, t) == 255).all()
+
+
+def test_segments_command_needs_labels(tmp_path):
+    """``pointtraj segments`` on a work folder without labels.npz: one line naming it."""
+    from click.testing import CliRunner
+
+    from pointtraj.cli import main
+
+    rng = np.random.default_rng(10)
+    traj, _, _, _ = _two_parts(rng, T=5, n=5, split=False)
+    work = tmp_path / "work"
+    work.mkdir()
+    traj.save(work / "trajectories.npz")
+    res = CliRunner().invoke(main, ["segments", str(work)])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert "labels.npz" in res.output and "pointtraj label" in res.output

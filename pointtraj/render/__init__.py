@@ -26,7 +26,14 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from .config import ORBIT, RenderConfig
     from .offscreen import TrajectoryRenderer
-    from .overlay import draw_caption, draw_legend, draw_overlay, draw_scene, legend_image
+    from .overlay import (
+        draw_caption,
+        draw_legend,
+        draw_overlay,
+        draw_scene,
+        draw_segments,
+        legend_image,
+    )
     from .palette import UNLABELLED_COLOR, class_palette, label_colors
     from .scene import floor_grid, orbit_cameras, tail_segments
     from .stage import RenderOutput, RenderResult, render_work
@@ -41,6 +48,7 @@ __all__ = [
     "tail_segments",
     "draw_scene",
     "draw_overlay",
+    "draw_segments",
     "draw_legend",
     "draw_caption",
     "legend_image",
@@ -68,6 +76,7 @@ _HOME = {
     "orbit_cameras": "scene",
     "draw_scene": "overlay",
     "draw_overlay": "overlay",
+    "draw_segments": "overlay",
     "draw_legend": "overlay",
     "draw_caption": "overlay",
     "legend_image": "overlay",
