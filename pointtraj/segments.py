@@ -546,6 +546,7 @@ def fit_joint_centres(
         # prior_deg: negligible along well-rotated directions, decisive along a hinge's axis
         mu = max(0.5 * np.radians(cfg.prior_deg) ** 2, 1e-12)  # > 0: solvable on a hinge
         Nn = N / np.maximum(nt, 1)[:, None, None] + mu * np.diag([0.0, 0, 0, 1, 1, 1])
+        Nn = Nn + 1e-12 * np.eye(6)  # solvable without common frames (those are NaN below)
         x = np.linalg.solve(Nn, (g / np.maximum(nt, 1)[:, None])[..., None])[..., 0]  # (J', 6)
         st = np.where(dropped == 0, 0, np.where(dropped == 1, 1, 3)).astype(np.int8)
         if not cfg.hinge_centres:

@@ -51,6 +51,7 @@ def test_run_makes_every_output(tiny_run):
         "semantics",
         "affinity",
         "label",
+        "segments",
         "evaluate",
         "render",
     ]
@@ -58,6 +59,7 @@ def test_run_makes_every_output(tiny_run):
     labels = load_labels(config.work / "labels.npz")
     assert len(labels) == traj.num_trajectories > 50
     assert labels.class_names[0] == "head"
+    assert (config.work / "segments.npz").is_file()
     csv = (config.work / "labels.csv").read_text(encoding="utf-8").splitlines()
     assert len(csv) == traj.num_trajectories + 1
     timings = json.loads((config.work / "timings.json").read_text(encoding="utf-8"))

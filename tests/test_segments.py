@@ -302,3 +302,18 @@ def test_segments_command_needs_labels(tmp_path):
     res = CliRunner().invoke(main, ["segments", str(work)])
     assert res.exit_code == 1 and "Traceback" not in res.output
     assert "labels.npz" in res.output and "pointtraj label" in res.output
+
+
+def test_parts_never_posed_together():
+    """Regression: two parts with poses in disjoint frames made the joint's solve singular
+    (LinAlgError in the tiny pipeline); the joint is now few_frames, NaN."""
+    rng = np.random.default_rng(11)
+    traj, lab, _, _ = _two_parts(rng, T=20, n=10, split=False)
+    dense = traj.dense_positions()  # (M, T, 3)
+    dense[lab == 0, 10:] = np.nan  # the torso only in frames 0-9
+    dense[lab == 1, :10] = np.nan  # the head only in 10-19
+    traj = Trajectories.from_dense(dense, camera_names=["a", "b"])
+    seg = compute_segments(traj, lab, LABELS)
+    assert seg.joint_frames[0] == 0
+    assert JOINT_STATUS[seg.joint_status[0]] == "few_frames"
+    assert np.isnan(seg.joint_local).all()
