@@ -61,7 +61,8 @@ FORMAT_VERSION = 1
 #: child part's centroid), ``few_frames`` (2, NaN: fewer than ``min_frames`` frames with both
 #: poses), ``no_rotation`` (3, NaN: less relative rotation than ``min_rotation_deg`` about
 #: two axes), ``missing_part`` (4, NaN: a part with no pose at all), ``hinge_off`` (5, NaN: a
-#: hinge with ``hinge_centres`` off).
+#: hinge with ``hinge_centres`` off), ``uncertain`` (6, NaN: the centre's standard error along
+#: its least-rotated solved direction is above ``max_uncertainty``).
 JOINT_STATUS: tuple[str, ...] = (
     "ball",
     "hinge",
@@ -69,6 +70,7 @@ JOINT_STATUS: tuple[str, ...] = (
     "no_rotation",
     "missing_part",
     "hinge_off",
+    "uncertain",
 )
 
 
@@ -99,6 +101,11 @@ class SegmentsConfig:
         (degrees): it decides the centre along a hinge's axis and shrinks a direction rotated
         by θ by ``θ² / (θ² + prior_deg²)`` (a ball joint rotated 20° is biased by 0.25 % of the
         child centroid's distance to the joint; 0 turns the pull off).
+    max_uncertainty : float
+        Largest standard error (metres) of a joint centre along its least-rotated solved
+        direction, estimated from the residual gap between the two parts' copies of the centre:
+        above it the joint is ``uncertain`` (NaN). Small rotations with noisy poses, or two
+        parts that do not share a fixed point (a joint in between), fail it.
     classes : str
         Which classes get segments: ``"body"`` (the label set's body parts) or ``"all"``.
     seed : int
@@ -113,6 +120,7 @@ class SegmentsConfig:
     min_rotation_deg: float = 3.0
     hinge_centres: bool = True
     prior_deg: float = 1.0
+    max_uncertainty: float = 0.02
     classes: str = "body"
     seed: int = 0
 
@@ -132,6 +140,8 @@ class SegmentsConfig:
             raise ValidationError(
                 f"min_rotation_deg must lie in [0, 90), got {self.min_rotation_deg!r}"
             )
+        if not self.max_uncertainty > 0:
+            raise ValidationError(f"max_uncertainty must be positive, got {self.max_uncertainty!r}")
         if not (0 <= self.prior_deg < 90):
             raise ValidationError(f"prior_deg must lie in [0, 90), got {self.prior_deg!r}")
         if self.classes not in ("body", "all"):
@@ -180,6 +190,8 @@ class Segments:
         RMS relative rotation about the three least-rotated directions, ascending, degrees.
     joint_residual : (J,) float64 ndarray
         RMS distance between the centre as carried by the parent and by the child, metres.
+    joint_uncertainty : (J,) float64 ndarray
+        Standard error of the centre along its least-rotated solved direction, metres.
     fps : float
     params : dict
         The settings used.
@@ -203,6 +215,7 @@ class Segments:
     joint_frames: np.ndarray | None = None
     joint_rotation_deg: np.ndarray | None = None
     joint_residual: np.ndarray | None = None
+    joint_uncertainty: np.ndarray | None = None
     fps: float = 30.0
     params: dict | None = None
 
@@ -228,6 +241,7 @@ class Segments:
             "joint_frames": ((J,), np.int64, 0),
             "joint_rotation_deg": ((J, 3), np.float64, np.nan),
             "joint_residual": ((J,), np.float64, np.nan),
+            "joint_uncertainty": ((J,), np.float64, np.nan),
         }
         for name, (shape, dtype, fill) in defaults.items():
             value = getattr(self, name)
@@ -526,6 +540,7 @@ def fit_joint_centres(
     frames = np.zeros(J, np.int64)
     spread = np.full((J, 3), np.nan)
     resid = np.full(J, np.nan)
+    uncert = np.full(J, np.nan)
     both = (seg >= 0).all(axis=1)
     if both.any():
         sa, sb = seg[both, 0], seg[both, 1]
@@ -552,18 +567,24 @@ def fit_joint_centres(
         if not cfg.hinge_centres:
             st[st == 1] = JOINT_STATUS.index("hinge_off")
         st[nt < cfg.min_frames] = JOINT_STATUS.index("few_frames")
-        good = st <= 1
         ca = segments.origin[sa] + x[:, :3]
         cb = segments.origin[sb] + x[:, 3:]
         lc = np.stack([ca, cb], axis=1)  # (J', 2, 3)
-        lc[~good] = np.nan
         wa = np.einsum("jtik,jk->jti", Ra, lc[:, 0]) + segments.translation[sa]
         wb = np.einsum("jtik,jk->jti", Rb, lc[:, 1]) + segments.translation[sb]
         d2 = np.where(ok, ((wa - wb) ** 2).sum(axis=-1), 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            rj = np.sqrt(d2.sum(axis=1) / nt)
+            rj = np.sqrt(d2.sum(axis=1) / nt)  # (J',) RMS gap between the two ends
+            # standard error along the least-rotated solved direction: the residual per
+            # coordinate over sqrt(frames x eigenvalue) (the hinge's axis is the prior's)
+            lam_solved = lam[np.arange(len(nt)), np.minimum(dropped, 5)]
+            un = (rj / np.sqrt(3.0)) / np.sqrt(nt * np.maximum(lam_solved, 1e-300))
+        st[(st <= 1) & ~(un <= cfg.max_uncertainty)] = JOINT_STATUS.index("uncertain")
+        good = st <= 1
+        lc[~good] = np.nan
         status[both], local[both], frames[both] = st, lc, nt
         spread[both], resid[both] = ang, np.where(good, rj, np.nan)
+        uncert[both] = np.where(nt > 0, un, np.nan)
     for (jn, person, _, _), st in zip(rows, status):
         if st > 1:
             logger.info("joint %s (person %d): not observable (%s)", jn, person, JOINT_STATUS[st])
@@ -575,6 +596,7 @@ def fit_joint_centres(
     segments.joint_frames = frames
     segments.joint_rotation_deg = spread
     segments.joint_residual = resid
+    segments.joint_uncertainty = uncert
     segments.params = {**(segments.params or {}), "joints": [list(j) for j in joints]}
     return segments
 
@@ -645,6 +667,7 @@ _ARRAYS = (
     "joint_frames",
     "joint_rotation_deg",
     "joint_residual",
+    "joint_uncertainty",
 )
 
 
@@ -682,7 +705,7 @@ def load_segments(path: str | os.PathLike) -> Segments:
     path = Path(path)
     arrays = load_npz(
         path,
-        ("format_version", "class_names", "joint_names", "fps", *_ARRAYS),
+        ("format_version", "class_names", "joint_names", "fps", *_ARRAYS[:-1]),
         "a segments file",
         hint="run `pointtraj segments` first",
     )
@@ -696,7 +719,7 @@ def load_segments(path: str | os.PathLike) -> Segments:
             joint_names=tuple(str(n) for n in arrays["joint_names"]),
             fps=float(arrays["fps"]),
             params=params,
-            **{name: arrays[name] for name in _ARRAYS},
+            **{name: arrays.get(name) for name in _ARRAYS},  # joint_uncertainty: optional
         )
     except (ValidationError, ValueError, TypeError) as exc:
         raise FileFormatError(path, str(exc)) from None

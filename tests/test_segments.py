@@ -317,3 +317,19 @@ def test_parts_never_posed_together():
     assert seg.joint_frames[0] == 0
     assert JOINT_STATUS[seg.joint_status[0]] == "few_frames"
     assert np.isnan(seg.joint_local).all()
+
+
+def test_uncertain_joint_is_nan():
+    """Noisy points and little relative rotation: the centre's standard error is large, and
+    above max_uncertainty the joint is NaN with status uncertain."""
+    rng = np.random.default_rng(12)
+    traj, lab, _, _ = _two_parts(rng, relative="ball", split=False)
+    traj.xyz = traj.xyz + rng.normal(scale=0.003, size=traj.xyz.shape).astype(np.float32)
+    seg = compute_segments(traj, lab, LABELS)
+    assert JOINT_STATUS[seg.joint_status[0]] == "ball"
+    err = float(seg.joint_uncertainty[0])
+    assert 0 < err < 0.02
+    seg = compute_segments(traj, lab, LABELS, config=SegmentsConfig(max_uncertainty=err / 2))
+    assert JOINT_STATUS[seg.joint_status[0]] == "uncertain"
+    assert np.isnan(seg.joint_positions()).all()
+    np.testing.assert_allclose(seg.joint_uncertainty[0], err)  # still reported

@@ -42,11 +42,15 @@ def segments(work: Path, config_path: Path | None, **options) -> None:
         f"{res.num_segments} segments, {posed} of {res.rotation[..., 0, 0].size} "
         f"segment-frames posed -> {work / 'segments.npz'}"
     )
-    for name, st, n, deg in zip(
-        res.joint_labels(), res.joint_status, res.joint_frames, res.joint_rotation_deg
+    for name, st, n, deg, err in zip(
+        res.joint_labels(),
+        res.joint_status,
+        res.joint_frames,
+        res.joint_rotation_deg,
+        res.joint_uncertainty,
     ):
         click.echo(
             f"  {name:24s} {JOINT_STATUS[st]:12s} {n:5d} frames, rotation "
             + " / ".join(f"{d:.1f}" for d in deg)
-            + " deg"
+            + f" deg, standard error {1000 * err:.1f} mm"
         )
