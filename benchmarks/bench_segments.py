@@ -40,11 +40,15 @@ def make_store(M: int, T: int, rng: np.random.Generator):
         [[rotation_from_rodrigues(axes[k] * 0.03 * t) for t in range(T)] for k in range(K)]
     )  # (K, T, 3, 3)
     t_k = rng.normal(size=(K, 1, 3)) + np.linspace(0, 0.3, T)[None, :, None]  # (K, T, 3)
-    xyz = np.einsum("pij,pj->pi", R[label[track], frame], local[track]) + t_k[label[track], frame]
+    xyz = np.empty((P, 3), np.float32)
+    for k in range(K):  # one part at a time: no (P, 3, 3) temporary
+        rows = np.flatnonzero(label[track] == k)
+        f = frame[rows]
+        xyz[rows] = np.einsum("pij,pj->pi", R[k, f], local[track[rows]]) + t_k[k, f]
     store = Trajectories(
         first_frame=first,
         offsets=offsets,
-        xyz=xyz.astype(np.float32),
+        xyz=xyz,
         visibility=np.zeros((P, 1), np.uint8),
         reprojection_error=np.zeros(P, np.float32),
         color=np.zeros((P, 3), np.uint8),
