@@ -9,7 +9,8 @@ Usage (the demo's figure in ``docs/segments.md``)::
 
 Each panel is one camera's image at one frame with the labelled points alive there (class
 colours, small), every segment's frame at its centroid (x red, y green, z blue, 8 cm) and the
-joint centres (yellow); the panels are placed side by side.
+joint centres (yellow), cropped around the labelled points and shown at twice the size; the
+panels are placed side by side.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from pointtraj.labelfile import load_labels
@@ -48,7 +50,16 @@ def main() -> None:
         image = (0.6 * image + 0.4 * 255).astype(np.uint8)  # lighter, so the marks stand out
         image = draw_scene(image, camera, traj.xyz[rows][keep], palette[lab[keep]], radius=1)
         image = draw_segments(image, camera, seg, t)
-        panels.append(draw_caption(image, f"{cam}, frame {t}"))
+        pix, _, inside = camera.project(traj.xyz[rows][keep])
+        lo = np.floor(pix[inside].min(axis=0)).astype(int) - 30
+        hi = np.ceil(pix[inside].max(axis=0)).astype(int) + 30
+        crop = image[max(lo[1], 0) : hi[1], max(lo[0], 0) : hi[0]]
+        crop = cv2.resize(crop, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
+        panels.append(draw_caption(crop, f"{cam}, frame {t}"))
+    height = max(p.shape[0] for p in panels)
+    panels = [
+        np.pad(p, ((0, height - p.shape[0]), (0, 0), (0, 0)), constant_values=255) for p in panels
+    ]
     write_png(out, np.concatenate(panels, axis=1))
     sys.stdout.write(f"wrote {out}\n")
 
