@@ -34,11 +34,16 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import FileFormatError, ValidationError
+from .errors import FileFormatError, ValidationError, check_array
 from .geometry import ransac_rigid_groups
+
+if TYPE_CHECKING:
+    from .labelset import LabelSet
+    from .trajectories import Trajectories
 
 __all__ = [
     "SegmentsConfig",
@@ -335,7 +340,7 @@ def _segment_index(
 
 
 def fit_segment_poses(
-    trajectories,
+    trajectories: Trajectories,
     labels: np.ndarray,
     instance: np.ndarray | None = None,
     classes: Sequence[int] | None = None,
@@ -372,8 +377,6 @@ def fit_segment_poses(
     ValidationError
         If ``labels`` or ``instance`` do not have one entry per trajectory.
     """
-    from .errors import check_array
-
     cfg = config or SegmentsConfig()
     M, T = trajectories.num_trajectories, trajectories.num_frames
     labels = check_array("labels", labels, (M,), dtype=np.int64)
@@ -602,9 +605,9 @@ def fit_joint_centres(
 
 
 def compute_segments(
-    trajectories,
+    trajectories: Trajectories,
     labels: np.ndarray,
-    labelset,
+    labelset: LabelSet,
     instance: np.ndarray | None = None,
     config: SegmentsConfig | None = None,
     *,

@@ -23,6 +23,7 @@ import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from ..atomic import atomic_path, write_text_atomic
 from ..errors import FileFormatError, ValidationError
 
 __all__ = ["Markers", "segment_markers", "save_c3d", "save_trc", "load_trc", "UNITS"]
+
+if TYPE_CHECKING:
+    from ..segments import Segments
 
 logger = logging.getLogger(__name__)
 
@@ -58,7 +62,7 @@ class Markers:
     first_frame: int = 0
 
 
-def segment_markers(segments, joints: bool = True, centroids: bool = True) -> Markers:
+def segment_markers(segments: Segments, joints: bool = True, centroids: bool = True) -> Markers:
     """The markers of ``segments``: observable joint centres, then part centroids.
 
     Parameters

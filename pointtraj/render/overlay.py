@@ -4,12 +4,16 @@ included) and drawn over an image or a blank canvas, and the annotations (legend
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..camera import Camera, CameraRig
 from ..trajectories import Trajectories
 from .scene import tail_segments
+
+if TYPE_CHECKING:
+    from ..segments import Segments
 
 __all__ = [
     "draw_scene",
@@ -295,7 +299,7 @@ JOINT_COLOR = np.array([255, 230, 0], np.uint8)
 def draw_segments(
     image: np.ndarray,
     camera: Camera,
-    segments,
+    segments: Segments,
     frame: int,
     *,
     axis_length: float = 0.08,
