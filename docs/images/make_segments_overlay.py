@@ -5,7 +5,7 @@ Usage (the demo's figure in ``docs/segments.md``)::
     pointtraj demo --out /tmp/segments/demo
     pointtraj segments /tmp/segments/demo/work
     python docs/images/make_segments_overlay.py /tmp/segments/demo/work \
-        docs/images/segments_demo.png cam01:30 cam05:30
+        docs/images/segments_demo.png cam01:30 cam03:30
 
 Each panel is one camera's image at one frame with the labelled points alive there (class
 colours, small), every segment's frame at its centroid (x red, y green, z blue, 8 cm) and the
@@ -54,7 +54,7 @@ def main() -> None:
         lo = np.floor(pix[inside].min(axis=0)).astype(int) - 30
         hi = np.ceil(pix[inside].max(axis=0)).astype(int) + 30
         crop = image[max(lo[1], 0) : hi[1], max(lo[0], 0) : hi[0]]
-        crop = cv2.resize(crop, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
+        crop = cv2.resize(crop, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
         panels.append(draw_caption(crop, f"{cam}, frame {t}"))
     height = max(p.shape[0] for p in panels)
     panels = [
