@@ -182,8 +182,8 @@ def test_run_command(tmp_path):
         assert "labels" in res.output and (tmp_path / "w2" / "labels.npz").is_file()
         res = runner.invoke(main, ["run", str(path), "--work", "w2"])
         assert (
-            "up to date: capture, trajectories, semantics, affinity, label, evaluate, render"
-            in res.output
+            "up to date: capture, trajectories, semantics, affinity, label, segments, evaluate, "
+            "render" in res.output
         )
         res = runner.invoke(main, ["run", "missing.toml"])
         assert res.exit_code == 1 and "missing.toml: no such file" in res.output
