@@ -51,7 +51,7 @@ import numpy as np
 from .atomic import save_npz_atomic
 from .errors import FileFormatError, ValidationError, check_array
 from .executor import Executor, SerialExecutor
-from .geometry import fit_rigid
+from .geometry import fit_rigid, rotation_from_triads, squared_norm
 from .trajectories import Trajectories
 
 __all__ = [
@@ -519,25 +519,6 @@ def filter_neighbors(
 
 
 # -- local rigid transforms --------------------------------------------------------------------
-def _sqnorm(v: np.ndarray) -> np.ndarray:
-    """Squared norm over the last axis of length 3 (faster than a strided sum)."""
-    return v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2]
-
-
-def _triad_rotation(a1, a2, b1, b2) -> np.ndarray:
-    """Proper rotation mapping the frame of (a1, a2) onto that of (b1, b2); (B, 3) inputs."""
-
-    def frame(u, v):
-        e1 = u / (np.linalg.norm(u, axis=-1, keepdims=True) + 1e-12)
-        e3 = np.cross(u, v)
-        e3 /= np.linalg.norm(e3, axis=-1, keepdims=True) + 1e-12
-        e2 = np.cross(e3, e1)
-        return np.stack([e1, e2, e3], axis=-1)  # (..., 3, 3) columns
-
-    Fa, Fb = frame(a1, a2), frame(b1, b2)
-    return Fb @ np.swapaxes(Fa, -1, -2)
-
-
 def _fit_chunk(
     context: tuple[Trajectories, np.ndarray, AffinityConfig],
     item: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -587,11 +568,11 @@ def _fit_chunk(
     k1 = (u1 * n[:, None]).astype(np.int64)
     k2 = (k1 + 1 + (u2 * (n[:, None] - 1)).astype(np.int64)) % n[:, None]
     bi = np.arange(r.size)[:, None]
-    Rh = _triad_rotation(a[bi, k1], a[bi, k2], b[bi, k1], b[bi, k2])  # (B, H, 3, 3)
+    Rh = rotation_from_triads(a[bi, k1], a[bi, k2], b[bi, k1], b[bi, k2])  # (B, H, 3, 3)
     Rh = Rh.astype(np.float32)
     res = b[:, None] - a[:, None] @ np.swapaxes(Rh, -1, -2)  # (B, H, S, 3)
     valid = np.arange(S)[None, :] < nval[:, None]  # (B, S)
-    inlier = (_sqnorm(res) < thr2) & valid[:, None]  # (B, H, S)
+    inlier = (squared_norm(res) < thr2) & valid[:, None]  # (B, H, S)
     best = inlier.sum(axis=2).argmax(axis=1)  # (B,)
     w = inlier[np.arange(r.size), best]  # (B, S)
     ninl = w.sum(axis=1)
@@ -599,7 +580,7 @@ def _fit_chunk(
     R = fit_rigid(a, b, w, center=False).rotation  # (B, 3, 3) Kabsch on the inliers
     # inlier count under the refined rotation
     res2 = b - a @ np.swapaxes(R, 1, 2).astype(np.float32)
-    n2 = ((_sqnorm(res2) < thr2) & valid).sum(axis=1)
+    n2 = ((squared_norm(res2) < thr2) & valid).sum(axis=1)
     return r, ok, R[ok], n2[ok]
 
 

@@ -6,6 +6,10 @@ reconstruction, the affinity and the calibration all use the same implementation
 
 - :func:`fit_rigid`: batched Kabsch/Umeyama, ``dst ≈ s R src + t`` with optional weights, scale
   and centring (the local rigid transforms of the affinity, the similarity between rigs);
+  :func:`fit_rigid_groups`, the same fit for ragged groups of points (the body-part poses);
+- :func:`rotation_from_triads`: the closed-form rotation of two vector pairs, RANSAC's hypothesis
+  (the affinity's local fits), and :func:`ransac_rigid_groups`, RANSAC rigid fits of many point
+  groups at once (the body-part poses of :mod:`pointtraj.segments`);
 - :func:`rotation_from_rodrigues`, :func:`rodrigues_from_rotation`: axis-angle vectors, both
   through ``scipy.spatial.transform.Rotation``;
 - :func:`mean_rotation`, :func:`rotation_angle_deg`: chordal mean of rotations and the angle
@@ -34,6 +38,11 @@ __all__ = [
     "N_DIST",
     "RigidFit",
     "fit_rigid",
+    "fit_rigid_groups",
+    "RansacFit",
+    "ransac_rigid_groups",
+    "rotation_from_triads",
+    "squared_norm",
     "rotation_from_rodrigues",
     "rodrigues_from_rotation",
     "mean_rotation",
@@ -150,13 +159,7 @@ def fit_rigid(
         a, b = a - mu_a, b - mu_b
     aw = a if w is None else a * w[..., None]
     H = np.swapaxes(aw, 1, 2) @ b  # (B, 3, 3) = Σ w a b^T
-    U, S, Vt = np.linalg.svd(H)
-    V = np.swapaxes(Vt, 1, 2)
-    Ut = np.swapaxes(U, 1, 2)
-    d = np.sign(np.linalg.det(V @ Ut))  # -1 where the best orthogonal map is a reflection
-    d[d == 0] = 1.0
-    V[:, :, 2] *= d[:, None]
-    R = V @ Ut  # (B, 3, 3) = V diag(1, 1, d) U^T
+    R, S, d = _kabsch(H)
     # Rank below 2 (collinear or coincident points: all-zero source sets included).
     valid = S[:, 1] > 1e-12 * np.maximum(S[:, 0], 1e-300)
     if with_scale:
@@ -170,6 +173,291 @@ def fit_rigid(
     if center:
         t = mu_b[:, 0] - s[:, None] * np.einsum("bij,bj->bi", R, mu_a[:, 0])  # (B, 3)
     return RigidFit(s, R, t, valid)
+
+
+def _kabsch(H: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The proper rotation maximising ``tr(R H)`` for cross-covariances ``H = Σ w a b^T``.
+
+    Parameters
+    ----------
+    H : (B, 3, 3) float ndarray
+
+    Returns
+    -------
+    R : (B, 3, 3) float ndarray
+        ``V diag(1, 1, d) U^T`` from ``H = U S V^T`` (Kabsch's determinant sign fix).
+    S : (B, 3) float ndarray
+        Singular values of ``H``.
+    d : (B,) float ndarray
+        -1 where the best orthogonal map was a reflection, else 1.
+    """
+    U, S, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, 1, 2)
+    Ut = np.swapaxes(U, 1, 2)
+    d = np.sign(np.linalg.det(V @ Ut))  # -1 where the best orthogonal map is a reflection
+    d[d == 0] = 1.0
+    V[:, :, 2] *= d[:, None]
+    return V @ Ut, S, d  # (B, 3, 3) = V diag(1, 1, d) U^T
+
+
+def fit_rigid_groups(
+    src: np.ndarray,
+    dst: np.ndarray,
+    group: np.ndarray,
+    num_groups: int,
+    weights: np.ndarray | None = None,
+) -> RigidFit:
+    """Least-squares rigid transforms ``dst ≈ R src + t`` of G ragged point groups at once.
+
+    The same fit as :func:`fit_rigid` (centred, weighted Kabsch with the determinant sign
+    fix), for points given as one flat list with a group index each rather than as a padded
+    (B, N, 3) batch: the sums run by ``numpy.bincount``, so memory is O(N + G) however unequal
+    the groups are.
+
+    Parameters
+    ----------
+    src, dst : (N, 3) float ndarray
+        Corresponding points.
+    group : (N,) int ndarray
+        Group of each pair, in ``[0, num_groups)``.
+    num_groups : int
+        G.
+    weights : (N,) float ndarray, optional
+        Non-negative weight per pair; 0 leaves a pair out.
+
+    Returns
+    -------
+    RigidFit
+        ``scale`` (G,) ones, ``rotation`` (G, 3, 3), ``translation`` (G, 3), ``valid`` (G,):
+        False for a group with fewer than 3 weighted pairs or collinear points.
+
+    Raises
+    ------
+    ValidationError
+        If the shapes do not match.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> a = rng.normal(size=(8, 3))
+    >>> fit = fit_rigid_groups(a, a + [1.0, 0.0, 0.0], np.array([0] * 4 + [1] * 4), 2)
+    >>> (np.round(fit.translation, 6) + 0.0).tolist(), fit.valid.tolist()
+    ([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]], [True, True])
+    """
+    a = check_array("src", src, (None, 3), dtype=np.float64)
+    b = check_array("dst", dst, a.shape, dtype=np.float64)
+    g = check_array("group", group, a.shape[:1], dtype=np.int64)
+    w = np.ones(len(a)) if weights is None else check_array("weights", weights, g.shape)
+    w = np.asarray(w, dtype=np.float64)
+    G = int(num_groups)
+    wsum = np.bincount(g, weights=w, minlength=G)  # (G,)
+    npos = np.bincount(g, weights=(w > 0).astype(np.float64), minlength=G)
+    safe = np.where(wsum > 0, wsum, 1.0)
+    mu_a = np.stack([np.bincount(g, weights=w * a[:, k], minlength=G) for k in range(3)], 1)
+    mu_b = np.stack([np.bincount(g, weights=w * b[:, k], minlength=G) for k in range(3)], 1)
+    mu_a, mu_b = mu_a / safe[:, None], mu_b / safe[:, None]  # (G, 3)
+    ac, bc = a - mu_a[g], b - mu_b[g]  # (N, 3)
+    H = np.empty((G, 3, 3))
+    for i in range(3):
+        for j in range(3):
+            H[:, i, j] = np.bincount(g, weights=w * ac[:, i] * bc[:, j], minlength=G)
+    R, S, _ = _kabsch(H)
+    valid = (npos >= 3) & (S[:, 1] > 1e-12 * np.maximum(S[:, 0], 1e-300))
+    t = mu_b - np.einsum("gij,gj->gi", R, mu_a)  # (G, 3)
+    return RigidFit(np.ones(G), R, t, valid)
+
+
+class RansacFit(NamedTuple):
+    """Robust rigid transforms of point groups from :func:`ransac_rigid_groups`.
+
+    Attributes
+    ----------
+    rotation : (G, 3, 3) float64 ndarray
+        NaN where ``valid`` is False.
+    translation : (G, 3) float64 ndarray
+        NaN where ``valid`` is False.
+    valid : (G,) bool ndarray
+        A transform was found (at least ``min_inliers`` inliers, non-degenerate).
+    inlier : (N,) bool ndarray
+        Pairs within the threshold of their group's final transform.
+    inliers : (G,) int64 ndarray
+        Inlier count per group.
+    residual : (G,) float64 ndarray
+        Root mean square residual ``‖dst - (R src + t)‖`` over the inliers (NaN without).
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    valid: np.ndarray
+    inlier: np.ndarray
+    inliers: np.ndarray
+    residual: np.ndarray
+
+
+def ransac_rigid_groups(
+    src: np.ndarray,
+    dst: np.ndarray,
+    group: np.ndarray,
+    num_groups: int,
+    *,
+    threshold: float,
+    iterations: int,
+    rng: np.random.Generator,
+    min_inliers: int = 3,
+    refinements: int = 2,
+    score_points: int | None = 2000,
+) -> RansacFit:
+    """RANSAC rigid fits ``dst ≈ R src + t`` of G ragged point groups, vectorised over groups.
+
+    A hypothesis per group is the rigid map of a random 3-point sample (the closed-form TRIAD
+    alignment :func:`rotation_from_triads`, as the affinity's local fits use); hypotheses are
+    scored by MSAC (the sum of ``min(r², threshold²)`` over the group), the best is refitted on
+    its inliers by :func:`fit_rigid_groups`, and the inliers are re-selected and refitted
+    ``refinements`` times. Points are scored one hypothesis at a time, so memory is O(N + G H),
+    and on at most ``score_points`` per group, so time is O(G H score_points + N).
+
+    Parameters
+    ----------
+    src, dst : (N, 3) float ndarray
+        Corresponding points.
+    group : (N,) int ndarray
+        Group of each pair, in ``[0, num_groups)``.
+    num_groups : int
+        G.
+    threshold : float
+        Inlier distance, in the points' units.
+    iterations : int
+        Hypotheses per group, H.
+    rng : numpy.random.Generator
+        Draws the samples.
+    min_inliers : int
+        Fewest inliers (and pairs) a group needs for a transform (at least 3).
+    refinements : int
+        Inlier re-selections after the first refit.
+    score_points : int or None
+        Score the hypotheses on at most this many random members of each group (None: all);
+        the refits use every member.
+
+    Returns
+    -------
+    RansacFit
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> a = rng.normal(size=(40, 3))
+    >>> b = a @ rotation_from_rodrigues([0.0, 0.0, 0.5]).T + 1.0
+    >>> b[:5] += 3.0  # five outliers
+    >>> fit = ransac_rigid_groups(a, b, np.zeros(40, int), 1, threshold=0.01, iterations=32, rng=rng)
+    >>> int(fit.inliers[0]), bool(np.allclose(fit.translation[0], 1.0))
+    (35, True)
+    """
+    a = check_array("src", src, (None, 3), dtype=np.float64)
+    b = check_array("dst", dst, a.shape, dtype=np.float64)
+    g = check_array("group", group, a.shape[:1], dtype=np.int64)
+    G, H, N = int(num_groups), int(iterations), len(a)
+    thr2 = float(threshold) ** 2
+    min_inliers = max(3, int(min_inliers))
+    order = np.argsort(g, kind="stable")
+    counts = np.bincount(g, minlength=G)  # (G,)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])  # (G,)
+    n = np.maximum(counts, 1)[:, None]  # (G, 1)
+    # three distinct members per hypothesis (distinct where the group has three)
+    k1 = (rng.random((G, H)) * n).astype(np.int64)
+    k2 = (k1 + 1 + (rng.random((G, H)) * np.maximum(n - 1, 1)).astype(np.int64)) % n
+    k3 = (rng.random((G, H)) * n).astype(np.int64)
+    k3 = np.where((k3 == k1) | (k3 == k2), (np.maximum(k1, k2) + 1) % n, k3)
+    if N == 0:
+        return RansacFit(
+            np.full((G, 3, 3), np.nan),
+            np.full((G, 3), np.nan),
+            np.zeros(G, dtype=bool),
+            np.zeros(0, dtype=bool),
+            np.zeros(G, dtype=np.int64),
+            np.full(G, np.nan),
+        )
+    # (G, H) point indices; an empty group's samples point anywhere (it gets no transform)
+    i1, i2, i3 = (order[np.minimum(starts[:, None] + k, N - 1)] for k in (k1, k2, k3))
+    Rh = rotation_from_triads(a[i2] - a[i1], a[i3] - a[i1], b[i2] - b[i1], b[i3] - b[i1])
+    th = b[i1] - np.einsum("ghij,ghj->ghi", Rh, a[i1])  # (G, H, 3)
+    # hypotheses are scored on at most score_points random members of each group
+    sub = np.arange(N)
+    if score_points is not None and counts.max() > score_points:
+        pos = np.empty(N, dtype=np.int64)
+        shuffled = order[np.lexsort((rng.random(N), g[order]))]  # by group, random within
+        pos[shuffled] = np.arange(N) - starts[g[shuffled]]  # rank within its group
+        sub = np.flatnonzero(pos < score_points)
+    a_s, b_s, g_s = a[sub], b[sub], g[sub]
+    cost = np.zeros((G, H))
+    for h in range(H):  # one hypothesis at a time over all points: O(N) memory
+        r = b_s - np.einsum("nij,nj->ni", Rh[g_s, h], a_s) - th[g_s, h]  # (N', 3)
+        cost[:, h] = np.bincount(g_s, weights=np.minimum(squared_norm(r), thr2), minlength=G)
+    best = cost.argmin(axis=1)  # (G,)
+    gi = np.arange(G)
+    R, t = Rh[gi, best], th[gi, best]  # (G, 3, 3), (G, 3)
+    inlier = np.zeros(N, dtype=bool)
+    for _ in range(1 + max(0, int(refinements))):
+        r2 = squared_norm(b - np.einsum("nij,nj->ni", R[g], a) - t[g])  # (N,)
+        inlier = r2 < thr2
+        fit = fit_rigid_groups(a, b, g, G, inlier.astype(np.float64))
+        R, t = fit.rotation, fit.translation
+    r2 = squared_norm(b - np.einsum("nij,nj->ni", R[g], a) - t[g])
+    inlier = r2 < thr2
+    inliers = np.bincount(g, weights=inlier, minlength=G).astype(np.int64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(np.bincount(g, weights=np.where(inlier, r2, 0.0), minlength=G) / inliers)
+    valid = fit.valid & (inliers >= min_inliers) & (counts >= min_inliers)
+    R = np.where(valid[:, None, None], R, np.nan)
+    t = np.where(valid[:, None], t, np.nan)
+    return RansacFit(
+        R, t, valid, inlier & valid[g], np.where(valid, inliers, 0), np.where(valid, rms, np.nan)
+    )
+
+
+def squared_norm(v: np.ndarray) -> np.ndarray:
+    """Squared norm over the last axis of length 3 (faster than a strided sum).
+
+    Parameters
+    ----------
+    v : (..., 3) float ndarray
+
+    Returns
+    -------
+    (...) float ndarray
+    """
+    return v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2]
+
+
+def rotation_from_triads(
+    a1: np.ndarray, a2: np.ndarray, b1: np.ndarray, b2: np.ndarray
+) -> np.ndarray:
+    """Proper rotation mapping the frame of the vector pair (a1, a2) onto that of (b1, b2).
+
+    The TRIAD alignment: each pair spans an orthonormal frame (``e1`` along the first vector,
+    ``e3`` normal to both); ``R = F_b F_a^T``. A closed-form rigid hypothesis from two
+    displacement vectors, cheap enough for many RANSAC samples at once.
+
+    Parameters
+    ----------
+    a1, a2, b1, b2 : (..., 3) float ndarray
+        Broadcast against each other.
+
+    Returns
+    -------
+    (..., 3, 3) float ndarray
+        Degenerate (collinear or zero) pairs give a matrix that is not a rotation; RANSAC
+        scores such a hypothesis low.
+    """
+
+    def frame(u, v):
+        e1 = u / (np.linalg.norm(u, axis=-1, keepdims=True) + 1e-12)
+        e3 = np.cross(u, v)
+        e3 /= np.linalg.norm(e3, axis=-1, keepdims=True) + 1e-12
+        e2 = np.cross(e3, e1)
+        return np.stack([e1, e2, e3], axis=-1)  # (..., 3, 3) columns
+
+    Fa, Fb = frame(a1, a2), frame(b1, b2)
+    return Fb @ np.swapaxes(Fa, -1, -2)
 
 
 # -- rotations -----------------------------------------------------------------------------------

@@ -16,6 +16,10 @@ order and says how each recogniser's own output names map onto them::
     [recognizers.object-detector]
     map = { "sports ball" = "ball" }
 
+    [[joints]]               # optional: the body-part adjacency (pointtraj.segments)
+    name = "neck"
+    parts = ["torso", "head"]
+
 A ``[recognizers.<name>]`` table may carry other keys besides ``map`` (for example a model path);
 they are kept verbatim in :attr:`LabelSet.recognizer_options`.
 """
@@ -33,7 +37,15 @@ import numpy as np
 
 from .errors import FileFormatError, ValidationError
 
-__all__ = ["LabelSet", "KINDS", "BODY_PARTS", "load_labelset", "save_labelset"]
+__all__ = [
+    "LabelSet",
+    "KINDS",
+    "BODY_PARTS",
+    "BODY_JOINTS",
+    "body_joints",
+    "load_labelset",
+    "save_labelset",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -57,6 +69,38 @@ BODY_PARTS: tuple[str, ...] = (
     "left_foot",
     "right_foot",
 )
+
+#: The joints between adjacent body parts of the synthetic figures: (name, parent part, child
+#: part). The joint is the child's proximal end (``pointtraj.synth.figure``: every part's local
+#: origin is its proximal joint).
+BODY_JOINTS: tuple[tuple[str, str, str], ...] = (
+    ("neck", "torso", "head"),
+    *(
+        joint
+        for side in ("left", "right")
+        for joint in (
+            (f"{side}_shoulder", "torso", f"{side}_upper_arm"),
+            (f"{side}_elbow", f"{side}_upper_arm", f"{side}_forearm"),
+            (f"{side}_wrist", f"{side}_forearm", f"{side}_hand"),
+            (f"{side}_hip", "torso", f"{side}_thigh"),
+            (f"{side}_knee", f"{side}_thigh", f"{side}_shin"),
+            (f"{side}_ankle", f"{side}_shin", f"{side}_foot"),
+        )
+    ),
+)
+
+
+def body_joints(names: Sequence[str]) -> tuple[tuple[str, str, str], ...]:
+    """The joints of :data:`BODY_JOINTS` whose two parts are both among ``names``.
+
+    Examples
+    --------
+    >>> body_joints(["torso", "head", "ball"])
+    (('neck', 'torso', 'head'),)
+    """
+    have = set(names)
+    return tuple(j for j in BODY_JOINTS if j[1] in have and j[2] in have)
+
 
 # Distinct display colours (a qualitative palette), one per default class.
 _DEFAULT_COLORS: tuple[tuple[int, int, int], ...] = (
@@ -95,12 +139,15 @@ class LabelSet:
         Per recogniser name, its output name -> class name.
     recognizer_options : mapping of str to mapping, optional
         Per recogniser name, other keys of its ``[recognizers.<name>]`` table.
+    joints : sequence of (str, str, str), optional
+        The body-part adjacency: ``(joint name, parent class, child class)`` per joint
+        (``[[joints]]`` of labels.toml; :mod:`pointtraj.segments` finds their centres).
 
     Raises
     ------
     ValidationError
-        On duplicate or empty names, bad colours, unknown kinds, or a mapping onto an unknown
-        class.
+        On duplicate or empty names, bad colours, unknown kinds, a mapping onto an unknown
+        class, or a joint naming an unknown class, the same class twice or a name twice.
 
     Examples
     --------
@@ -114,6 +161,7 @@ class LabelSet:
     kinds: tuple[str, ...] = ()
     recognizers: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
     recognizer_options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    joints: tuple[tuple[str, str, str], ...] = ()
 
     def __post_init__(self) -> None:
         names = tuple(str(n) for n in self.names)
@@ -160,6 +208,18 @@ class LabelSet:
                     )
             recognizers[str(rec)] = m
         options = {str(k): dict(v) for k, v in dict(self.recognizer_options).items()}
+        joints = tuple((str(j[0]), str(j[1]), str(j[2])) for j in self.joints)
+        joint_names: set[str] = set()
+        for jn, parent, child in joints:
+            if not jn.strip() or jn in joint_names:
+                raise ValidationError(f"joints: empty or duplicate joint name {jn!r}")
+            joint_names.add(jn)
+            for part in (parent, child):
+                if part not in seen:
+                    raise ValidationError(f"joints: {jn!r} names unknown class {part!r}")
+            if parent == child:
+                raise ValidationError(f"joints: {jn!r} joins class {parent!r} to itself")
+        object.__setattr__(self, "joints", joints)
         object.__setattr__(self, "names", names)
         object.__setattr__(self, "colors", colors)
         object.__setattr__(self, "kinds", kinds)
@@ -178,6 +238,7 @@ class LabelSet:
             and self.kinds == other.kinds
             and self.recognizers == other.recognizers
             and self.recognizer_options == other.recognizer_options
+            and self.joints == other.joints
         )
 
     def __repr__(self) -> str:
@@ -225,7 +286,8 @@ class LabelSet:
 
     @classmethod
     def default(cls) -> LabelSet:
-        """The default label set: the 14 body parts, then ``ball`` and ``racket`` (objects).
+        """The default label set: the 14 body parts, then ``ball`` and ``racket`` (objects),
+        with the body joints :data:`BODY_JOINTS`.
 
         Used when a capture has no ``labels.toml``.
 
@@ -237,7 +299,8 @@ class LabelSet:
         """
         names = (*BODY_PARTS, "ball", "racket")
         kinds = ("body",) * len(BODY_PARTS) + ("object", "object")
-        return cls(names, np.array(_DEFAULT_COLORS[: len(names)], dtype=np.uint8), kinds)
+        colors = np.array(_DEFAULT_COLORS[: len(names)], dtype=np.uint8)
+        return cls(names, colors, kinds, joints=BODY_JOINTS)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> LabelSet:
@@ -247,13 +310,13 @@ class LabelSet:
         ------
         FileFormatError
             Naming the file and the field: missing file, bad TOML, no classes, a duplicate
-            name, a bad colour or kind, a mapping onto an unknown class.
+            name, a bad colour or kind, a mapping onto an unknown class, a bad joint.
         """
         from .config import load_toml
 
         path = Path(path)
         data = load_toml(path)
-        unknown = sorted(set(data) - {"classes", "recognizers"})
+        unknown = sorted(set(data) - {"classes", "recognizers", "joints"})
         if unknown:
             raise FileFormatError(path, f"unknown top-level key {unknown[0]!r}")
         classes = data.get("classes")
@@ -318,7 +381,13 @@ class LabelSet:
             rest = {k: v for k, v in table.items() if k != "map"}
             if rest:
                 options[rec] = rest
-        return cls(tuple(names), np.array(colors, dtype=np.uint8), tuple(kinds), maps, options)
+        joints = _load_joints(path, data.get("joints", []))
+        try:
+            return cls(
+                tuple(names), np.array(colors, dtype=np.uint8), tuple(kinds), maps, options, joints
+            )
+        except ValidationError as exc:
+            raise FileFormatError(path, str(exc)) from None
 
     def save(self, path: str | os.PathLike) -> None:
         """Write this label set as ``labels.toml`` (atomically); :meth:`load` reads it back."""
@@ -338,7 +407,43 @@ class LabelSet:
             recognizers[rec] = table
         if recognizers:
             doc["recognizers"] = recognizers
+        if self.joints:
+            doc["joints"] = [
+                {"name": n, "parts": [parent, child]} for n, parent, child in self.joints
+            ]
         save_toml(path, doc, comment="pointtraj label set: classes in class-index order")
+
+
+def _load_joints(path: Path, joints: Any) -> tuple[tuple[str, str, str], ...]:
+    """The ``[[joints]]`` tables of labels.toml as (name, parent, child) triples.
+
+    Raises
+    ------
+    FileFormatError
+        Naming the file and the table: not a list of tables, an unknown key, a bad name or
+        ``parts`` that is not two class names.
+    """
+    if not isinstance(joints, list):
+        raise FileFormatError(path, "joints: expected [[joints]] tables")
+    out = []
+    for i, entry in enumerate(joints):
+        where = f"joints[{i}]"
+        if not isinstance(entry, dict):
+            raise FileFormatError(path, f"{where}: expected a table")
+        extra = sorted(set(entry) - {"name", "parts"})
+        if extra:
+            raise FileFormatError(path, f"{where}: unknown key {extra[0]!r} (valid: name, parts)")
+        name, parts = entry.get("name"), entry.get("parts")
+        if not isinstance(name, str) or not name.strip():
+            raise FileFormatError(path, f"{where}.name: expected a non-empty string")
+        if not (
+            isinstance(parts, list) and len(parts) == 2 and all(isinstance(p, str) for p in parts)
+        ):
+            raise FileFormatError(
+                path, f"{where}.parts: expected [parent, child] class names, got {parts!r}"
+            )
+        out.append((name, parts[0], parts[1]))
+    return tuple(out)
 
 
 def check_class_names(

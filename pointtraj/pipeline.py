@@ -37,6 +37,7 @@ from .evaluate.study import EvaluateConfig
 from .executor import Executor, ExecutorConfig, LazyExecutor
 from .reconstruct.config import ReconstructConfig
 from .render.config import RenderConfig
+from .segments import SegmentsConfig
 from .stages import (
     LabelStageConfig,
     Progress,
@@ -64,6 +65,7 @@ STAGES: tuple[str, ...] = (
     "semantics",
     "affinity",
     "label",
+    "segments",
     "evaluate",
     "render",
 )
@@ -121,6 +123,8 @@ class PipelineConfig:
     semantics : SemanticsStageConfig
     affinity : AffinityConfig
     label : LabelStageConfig
+    segments : SegmentsConfig
+        Per-part poses and joint centres (``segments.npz``), after the labelling.
     evaluate : EvaluateConfig
     render : RenderConfig
     executor : ExecutorConfig
@@ -142,6 +146,7 @@ class PipelineConfig:
     semantics: SemanticsStageConfig = field(default_factory=SemanticsStageConfig)
     affinity: AffinityConfig = field(default_factory=AffinityConfig)
     label: LabelStageConfig = field(default_factory=LabelStageConfig)
+    segments: SegmentsConfig = field(default_factory=SegmentsConfig)
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
     executor: ExecutorConfig = field(default_factory=ExecutorConfig)
@@ -393,6 +398,13 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
             lambda: [_stamp(wf.trajectories), _stamp(wf.semantic_map), _stamp(wf.affinity)],
             [wf.labels, wf.labels_csv],
             lambda p, ex: stages.label_work(wf.path, config.label, progress=p),
+        ),
+        _Stage(
+            "segments",
+            config.segments,
+            lambda: [_stamp(wf.trajectories), _stamp(wf.labels), _stamp(cap / "labels.toml")],
+            [wf.segments],
+            lambda p, ex: stages.segments_work(wf.path, config.segments, progress=p),
         ),
         _Stage(
             "evaluate",

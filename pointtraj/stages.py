@@ -14,6 +14,7 @@ ground_truth   the capture's gt/                       work.toml, trajectories.n
 semantics      the capture's images, trajectories.npz  semantic_map.npz
 affinity       trajectories.npz                        affinity.npz
 label          semantic_map.npz, affinity.npz          labels.npz, labels.csv, clouds/ (label)
+segments       trajectories.npz, labels.npz            segments.npz
 ============== ======================================= ==========================================
 
 Progress is reported through an optional ``progress(label, done, total)`` callable.
@@ -43,6 +44,7 @@ if TYPE_CHECKING:
     from .executor import Executor
     from .labelfile import TrajectoryLabels
     from .reconstruct.config import ReconstructConfig
+    from .segments import Segments, SegmentsConfig
     from .semantics.recognizers import RecognizerSpec
     from .semantics.semantic_map import SemanticMap
     from .synth.render import CaptureSummary
@@ -60,6 +62,7 @@ __all__ = [
     "semantics_work",
     "affinity_work",
     "label_work",
+    "segments_work",
 ]
 
 logger = logging.getLogger(__name__)
@@ -638,3 +641,61 @@ def _label_locked(
         res.seconds,
     )
     return result
+
+
+def segments_work(
+    work: str | os.PathLike,
+    config: SegmentsConfig | None = None,
+    *,
+    progress: Progress | None = None,
+) -> Segments:
+    """Fit every labelled body part's 6-DoF pose per frame and the joint centres between
+    adjacent parts (:mod:`pointtraj.segments`); writes ``segments.npz``.
+
+    The classes, their kinds and the joints come from the capture's ``labels.toml`` (the body
+    joints of :data:`pointtraj.labelset.BODY_JOINTS` when it has no ``[[joints]]``); persons
+    from ``labels.npz``'s optional ``instance`` (otherwise the labelled body is one person).
+
+    Returns
+    -------
+    Segments
+
+    Raises
+    ------
+    FileFormatError
+        If ``trajectories.npz`` or ``labels.npz`` is missing or they disagree on the number of
+        trajectories.
+    """
+    from .labelfile import load_labels
+    from .labelset import LabelSet
+    from .segments import compute_segments, save_segments
+    from .trajectories import Trajectories
+
+    wf = WorkFolder(work)
+    with wf.lock("pointtraj segments"):
+        trajectories = Trajectories.load(wf.trajectories)
+        labels = load_labels(wf.labels)
+        M = trajectories.num_trajectories
+        if len(labels) != M:
+            raise FileFormatError(
+                wf.labels, f"has {len(labels)} trajectories, trajectories.npz {M}"
+            )
+        _check_capture_classes(wf, wf.labels, labels.class_names)
+        capture = wf.capture_path()
+        labels_toml = None if capture is None else capture / "labels.toml"
+        if labels_toml is not None and labels_toml.is_file():
+            labelset = LabelSet.load(labels_toml)
+        else:
+            names = labels.class_names
+            labelset = LabelSet(names, np.zeros((len(names), 3), np.uint8))
+        instance = getattr(labels, "instance", None)
+        segments = compute_segments(
+            trajectories,
+            labels.labels,
+            labelset,
+            instance,
+            config,
+            progress=None if progress is None else lambda d, n: progress("segments", d, n),
+        )
+        save_segments(segments, wf.segments)
+    return segments

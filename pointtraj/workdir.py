@@ -173,6 +173,11 @@ class WorkFolder:
         return self.path / "labels.csv"
 
     @property
+    def segments(self) -> Path:
+        """``segments.npz``: per-part 6-DoF poses and joint centres."""
+        return self.path / "segments.npz"
+
+    @property
     def report(self) -> Path:
         """``report/``: the evaluation report."""
         return self.path / "report"

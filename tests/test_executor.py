@@ -92,7 +92,7 @@ def test_the_executor_is_not_part_of_any_stage_key(tiny_reference):
     config = dataclasses.replace(config, executor=ExecutorConfig(workers=2))
     opened = []
     result = run_pipeline(config, on_executor=opened.append)
-    assert result.ran == [] and len(result.skipped) == 7
+    assert result.ran == [] and len(result.skipped) == 8
     assert opened == []  # nothing to run: no cluster started
 
 

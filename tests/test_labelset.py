@@ -99,3 +99,35 @@ def test_constructor_validation():
         LabelSet(["a"], [[0, 0, 0]], recognizers={"r": {"x": "b"}})
     with pytest.raises(KeyError, match="unknown class 'z'"):
         LabelSet.default().index("z")
+
+
+def test_joints_round_trip_and_errors(tmp_path):
+    """``[[joints]]``: the default set has BODY_JOINTS, they survive save/load, and a joint
+    naming an unknown class, the same class twice or without two parts is refused."""
+    from pointtraj.labelset import BODY_JOINTS, body_joints
+
+    labels = LabelSet.default()
+    assert labels.joints == BODY_JOINTS and len(BODY_JOINTS) == 13
+    path = tmp_path / "labels.toml"
+    labels.save(path)
+    assert "[[joints]]" in path.read_text(encoding="utf-8")
+    assert LabelSet.load(path) == labels
+    assert body_joints(["torso", "left_thigh", "left_shin"]) == (
+        ("left_hip", "torso", "left_thigh"),
+        ("left_knee", "left_thigh", "left_shin"),
+    )
+    head = (
+        '[[classes]]\nname = "a"\ncolor = [1, 2, 3]\n[[classes]]\nname = "b"\ncolor = [1, 2, 3]\n'
+    )
+    for joint, match in [
+        ('name = "j"\nparts = ["a", "c"]', "unknown class 'c'"),
+        ('name = "j"\nparts = ["a", "a"]', "to itself"),
+        ('name = "j"\nparts = ["a"]', r"joints\[0\].parts"),
+        ('name = "j"\nparts = ["a", "b"]\nangle = 3', "unknown key 'angle'"),
+    ]:
+        path.write_text(head + "[[joints]]\n" + joint + "\n", encoding="utf-8")
+        with pytest.raises(FileFormatError, match=match) as err:
+            LabelSet.load(path)
+        assert "labels.toml" in str(err.value)
+    with pytest.raises(ValidationError, match="duplicate joint"):
+        LabelSet(["a", "b"], [[1, 2, 3]] * 2, joints=[("j", "a", "b"), ("j", "b", "a")])

@@ -51,6 +51,7 @@ def test_run_makes_every_output(tiny_run):
         "semantics",
         "affinity",
         "label",
+        "segments",
         "evaluate",
         "render",
     ]
@@ -58,6 +59,7 @@ def test_run_makes_every_output(tiny_run):
     labels = load_labels(config.work / "labels.npz")
     assert len(labels) == traj.num_trajectories > 50
     assert labels.class_names[0] == "head"
+    assert (config.work / "segments.npz").is_file()
     csv = (config.work / "labels.csv").read_text(encoding="utf-8").splitlines()
     assert len(csv) == traj.num_trajectories + 1
     timings = json.loads((config.work / "timings.json").read_text(encoding="utf-8"))
@@ -67,6 +69,7 @@ def test_run_makes_every_output(tiny_run):
         "semantics",
         "affinity",
         "label",
+        "segments",
         "evaluate",
         "render",
     }
@@ -97,16 +100,16 @@ def test_run_makes_every_output(tiny_run):
 def test_rerun_skips_and_parameter_change_reruns_dependants(tiny_run, tmp_path):
     path, config, _ = tiny_run
     again = run_pipeline(config)
-    assert again.ran == [] and len(again.skipped) == 7
+    assert again.ran == [] and len(again.skipped) == 8
     labels_before = (config.work / "labels.npz").stat().st_mtime_ns
     changed = dataclasses.replace(config, affinity=dataclasses.replace(config.affinity, tau=0.05))
     res = run_pipeline(changed)
-    assert res.ran == ["affinity", "label", "evaluate", "render"]
+    assert res.ran == ["affinity", "label", "segments", "evaluate", "render"]
     assert res.skipped == ["capture", "trajectories", "semantics"]
     assert (config.work / "labels.npz").stat().st_mtime_ns != labels_before
     forced = run_pipeline(changed, force=["semantics"])
     # affinity does not read the semantic map
-    assert forced.ran == ["semantics", "label", "evaluate", "render"]
+    assert forced.ran == ["semantics", "label", "segments", "evaluate", "render"]
 
 
 def test_interrupted_reconstruction_resumes(tmp_path):
@@ -179,8 +182,8 @@ def test_run_command(tmp_path):
         assert "labels" in res.output and (tmp_path / "w2" / "labels.npz").is_file()
         res = runner.invoke(main, ["run", str(path), "--work", "w2"])
         assert (
-            "up to date: capture, trajectories, semantics, affinity, label, evaluate, render"
-            in res.output
+            "up to date: capture, trajectories, semantics, affinity, label, segments, evaluate, "
+            "render" in res.output
         )
         res = runner.invoke(main, ["run", "missing.toml"])
         assert res.exit_code == 1 and "missing.toml: no such file" in res.output

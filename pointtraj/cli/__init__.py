@@ -34,6 +34,7 @@ COMMANDS: dict[str, str] = {
     "evaluate": "pointtraj.cli.evaluate:evaluate",
     "export": "pointtraj.cli.export:export",
     "capture": "pointtraj.cli.capture:capture",
+    "segments": "pointtraj.cli.segments:segments",
 }
 
 

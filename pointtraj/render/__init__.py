@@ -31,6 +31,7 @@ if TYPE_CHECKING:
         draw_legend,
         draw_overlay,
         draw_scene,
+        draw_segments,
         legend_image,
         legend_origin,
     )
@@ -48,6 +49,7 @@ __all__ = [
     "tail_segments",
     "draw_scene",
     "draw_overlay",
+    "draw_segments",
     "draw_legend",
     "draw_caption",
     "legend_image",
@@ -76,6 +78,7 @@ _HOME = {
     "orbit_cameras": "scene",
     "draw_scene": "overlay",
     "draw_overlay": "overlay",
+    "draw_segments": "overlay",
     "draw_legend": "overlay",
     "draw_caption": "overlay",
     "legend_image": "overlay",

@@ -4,6 +4,7 @@ included) and drawn over an image or a blank canvas, and the annotations (legend
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -11,10 +12,14 @@ from ..camera import Camera, CameraRig
 from ..trajectories import Trajectories
 from .scene import tail_segments
 
+if TYPE_CHECKING:
+    from ..segments import Segments
+
 __all__ = [
     "LEGEND_CORNERS",
     "draw_scene",
     "draw_overlay",
+    "draw_segments",
     "draw_legend",
     "legend_origin",
     "legend_image",
@@ -377,3 +382,61 @@ def draw_caption(image: np.ndarray, text: str, *, scale: float | None = None) ->
     org = (x0 + pad, y1 - pad)
     cv2.putText(out, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, _TEXT_COLOR, thick, cv2.LINE_AA)
     return out
+
+
+#: Colours of a segment frame's x, y and z axes (RGB) and of joint centres.
+AXIS_COLORS = np.array([[230, 30, 30], [30, 200, 30], [40, 80, 255]], np.uint8)
+JOINT_COLOR = np.array([255, 230, 0], np.uint8)
+
+
+def draw_segments(
+    image: np.ndarray,
+    camera: Camera,
+    segments: Segments,
+    frame: int,
+    *,
+    axis_length: float = 0.08,
+    radius: int = 4,
+    line_width: int = 2,
+) -> np.ndarray:
+    """Draw every segment's frame and the joint centres at ``frame`` over an image.
+
+    A segment's frame is drawn at its centroid, its axes the world axes of its reference
+    frame carried by the pose (x red, y green, z blue); joint centres are yellow discs. Parts
+    without a pose and joints without a centre at ``frame`` are not drawn.
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8 ndarray
+        Not modified.
+    camera : Camera
+    segments : Segments
+        :class:`pointtraj.segments.Segments`.
+    frame : int
+    axis_length : float
+        Length of the drawn axes, metres.
+    radius, line_width : int
+        Joint disc radius and axis thickness, pixels.
+
+    Returns
+    -------
+    (H, W, 3) uint8 ndarray
+    """
+    c = segments.centroids()[:, frame]  # (S, 3)
+    R = segments.rotation[:, frame]  # (S, 3, 3)
+    ok = np.isfinite(c).all(axis=1)
+    tips = c[ok, None, :] + axis_length * np.swapaxes(R[ok], 1, 2)  # (S', 3 axes, 3)
+    lines = np.stack([np.repeat(c[ok], 3, axis=0), tips.reshape(-1, 3)], axis=1)  # (3S', 2, 3)
+    colors = np.tile(AXIS_COLORS, (int(ok.sum()), 1))
+    joints = segments.joint_positions()[:, frame]  # (J, 3)
+    joints = joints[np.isfinite(joints).all(axis=1)]
+    return draw_scene(
+        image,
+        camera,
+        joints,
+        np.tile(JOINT_COLOR, (len(joints), 1)),
+        lines,
+        colors,
+        radius=radius,
+        line_width=line_width,
+    )

@@ -32,7 +32,9 @@ from ..trajectories import Trajectories, quantize_visibility
 __all__ = [
     "GroundTruth",
     "GroundTruthPoints",
+    "SegmentTruth",
     "load_ground_truth",
+    "segment_ground_truth",
     "label_map_path",
     "load_label_map",
     "load_depth_map",
@@ -654,4 +656,87 @@ def load_ground_truth(capture_dir: str | os.PathLike) -> GroundTruth:
         color=meta.get("color", np.full((M, 3), 200, np.uint8)).astype(np.uint8),
         geometry=meta["geometry"].astype(np.int64),
         geometry_names=[str(s) for s in meta.get("geometry_names", [])],
+    )
+
+
+@dataclass(eq=False)
+class SegmentTruth:
+    """Exact part poses and joint centres of a synthetic capture's figures.
+
+    Attributes
+    ----------
+    part_label : (G,) int64 ndarray
+        Class of each labelled part (geometry).
+    part_instance : (G,) int64 ndarray
+        Its instance (figure) id.
+    part_poses : (G, T, 4, 4) float64 ndarray
+        Local-to-world matrix of each part at each frame.
+    joint_names : list of J str
+        :data:`pointtraj.labelset.BODY_JOINTS` names, per figure.
+    joint_instance : (J,) int64 ndarray
+    joints : (J, T, 3) float64 ndarray
+        World joint centres: the origin of the child part's local frame (every part's local
+        origin is its proximal joint, :mod:`pointtraj.synth.figure`).
+    """
+
+    part_label: np.ndarray
+    part_instance: np.ndarray
+    part_poses: np.ndarray
+    joint_names: list[str]
+    joint_instance: np.ndarray
+    joints: np.ndarray
+
+
+def segment_ground_truth(capture_dir: str | os.PathLike) -> SegmentTruth:
+    """The exact part poses and joint centres of a synthetic capture, from its generator.
+
+    The scene is rebuilt from ``gt/synth.toml`` (scene, seed, frames, fps) and posed at every
+    frame's time ``t / fps``, as the renderer posed it.
+
+    Parameters
+    ----------
+    capture_dir : path-like
+        A folder written by ``pointtraj synth``.
+
+    Returns
+    -------
+    SegmentTruth
+
+    Raises
+    ------
+    FileFormatError
+        If ``gt/synth.toml`` is missing or lacks a key.
+    """
+    from ..config import load_toml
+    from ..labelset import BODY_JOINTS
+    from .scenes import make_scene
+
+    path = Path(capture_dir) / "gt" / "synth.toml"
+    doc = load_toml(path)
+    missing = [k for k in ("scene", "seed", "frames", "fps") if k not in doc]
+    if missing:
+        raise FileFormatError(path, f"missing key {missing[0]!r}")
+    scene = make_scene(str(doc["scene"]), int(doc["seed"]))
+    T, fps = int(doc["frames"]), float(doc["fps"])
+    parts = np.flatnonzero(
+        [g.label >= 0 and scene.class_kinds[g.label] == "body" for g in scene.geometries]
+    )
+    poses = np.stack([scene.poses(t / fps)[parts] for t in range(T)], axis=1)  # (G, T, 4, 4)
+    label = np.array([scene.geometries[g].label for g in parts], np.int64)
+    inst = np.array([scene.geometries[g].instance for g in parts], np.int64)
+    where = {(scene.class_names[k], i): n for n, (k, i) in enumerate(zip(label, inst))}
+    names, insts, joints = [], [], []
+    for person in sorted(set(inst.tolist())):
+        for jn, parent, child in BODY_JOINTS:
+            if (parent, person) in where and (child, person) in where:
+                names.append(jn)
+                insts.append(person)
+                joints.append(poses[where[(child, person)], :, :3, 3])
+    return SegmentTruth(
+        part_label=label,
+        part_instance=inst,
+        part_poses=poses,
+        joint_names=names,
+        joint_instance=np.array(insts, np.int64),
+        joints=np.array(joints, np.float64).reshape(len(names), T, 3),
     )

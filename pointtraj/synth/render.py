@@ -522,7 +522,7 @@ def render_capture(
     ValidationError
         On a bad option, or if ``out`` holds a different capture.
     """
-    from ..labelset import LabelSet
+    from ..labelset import LabelSet, body_joints
     from ..session import Capture
     from . import groundtruth as gtio
     from .presets import PRESETS, make_rig
@@ -590,6 +590,7 @@ def render_capture(
         sc.class_colors,
         kinds=sc.class_kinds,
         recognizers=sc.extras.get("recognizers", {}),
+        joints=body_joints(sc.class_names),
     ).save(out / "labels.toml")
     points = gtio.sample_ground_truth_points(sc, points_per_part, seed)
     gtio.save_points(
