@@ -101,6 +101,18 @@ class DensifyConfig:
         (0: all). Bounds the cost on dense rigs.
     max_points : int
         At most this many new points per frame (bounds the cost).
+    seeds : {"moving", "new", "all"}
+        Which of the frame's points densification grows from. ``"new"``: the points that
+        matching found at this frame (at a capture's first frame, all of them), so that it fills
+        around matched texture and stops there. ``"moving"``: those and the tracked points whose
+        image moved by more than ``seed_motion_px`` since the previous frame in the cameras
+        that follow them, so that surface a moving limb newly shows is filled too, while
+        static, already covered surface (a floor) stops growing. ``"all"``: every point of the
+        frame, so that the covered area grows by ``rounds * radius_px`` every frame, over static
+        surfaces too, until ``max_points`` caps it (about 20,000 new points a frame on paper69).
+    seed_motion_px : float
+        With ``seeds = "moving"``: the image motion (pixels, the median over the cameras that
+        follow the point) above which a tracked point seeds densification.
     """
 
     enabled: bool = False
@@ -121,6 +133,8 @@ class DensifyConfig:
     rounds: int = 2
     max_partners: int = 3
     max_points: int = 20000
+    seeds: str = "moving"
+    seed_motion_px: float = 1.0
 
     def __post_init__(self) -> None:
         checks = {
@@ -141,10 +155,15 @@ class DensifyConfig:
             "rounds": self.rounds >= 1,
             "max_partners": self.max_partners >= 0,
             "max_points": self.max_points >= 1,
+            "seed_motion_px": self.seed_motion_px >= 0,
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
             raise ValidationError(f"DensifyConfig.{bad[0]} out of range: {getattr(self, bad[0])!r}")
+        if self.seeds not in ("moving", "new", "all"):
+            raise ValidationError(
+                f'DensifyConfig.seeds must be "moving", "new" or "all", not {self.seeds!r}'
+            )
 
 
 #: Default memory budget (MB) of the prepared images that :class:`PreparedImages` keeps.

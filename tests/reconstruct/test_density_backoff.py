@@ -116,13 +116,14 @@ def test_tracker_backs_off_the_camera_that_never_finds_its_points(blind_camera):
 def test_density_saturates_on_a_still_scene(four_cameras):
     """On a still textured plane, new points are only made where no live point is visible,
     observed there or not: without view discovery (points keep the views they were made in),
-    densification from a camera that does not observe the live points duplicated them."""
+    densification from a camera that does not observe the live points duplicated them.
+    Densification grows from every point here (``seeds = "all"``), as it did then."""
     rig, frames = four_cameras
     still = [frames[0]] * 6
     base = ReconstructConfig(
         matching=MatchingConfig(num_features=400),
         max_angle_deg=80.0,
-        densify=DensifyConfig(enabled=True, max_partners=1),
+        densify=DensifyConfig(enabled=True, max_partners=1, seeds="all"),
         views=ViewsConfig(enabled=False),
     )
     live, new = {}, {}
@@ -135,3 +136,39 @@ def test_density_saturates_on_a_still_scene(four_cameras):
     assert new[True][1] < 0.7 * new[False][1]
     assert live[True][-1] < 0.85 * live[False][-1]
     assert new[True][-1] < 0.02 * live[True][-1]  # what grows is the plane's edge, slowly
+
+
+def test_densification_stops_growing_over_still_surface(four_cameras):
+    """Regression (issue #14): densification grew from every tracked point, so a still floor's
+    covered area spread by ``rounds * radius_px`` every frame; grown only from new matches and
+    moving points (the default), a still scene stops gaining points after its first frames."""
+    rig, frames = four_cameras
+    still = [frames[0]] * 4
+    new = {}
+    for seeds in ("all", "moving", "new"):
+        cfg = ReconstructConfig(
+            matching=MatchingConfig(num_features=400),
+            max_angle_deg=80.0,
+            densify=DensifyConfig(enabled=True, max_partners=1, seeds=seeds),
+            views=ViewsConfig(enabled=False),
+            cover_visible="off",
+        )
+        tracker = Tracker(rig, cfg)
+        new[seeds] = np.array([tracker.step(t, imgs).num_new for t, imgs in enumerate(still)])
+    assert new["moving"][0] == new["new"][0] == new["all"][0] > 0  # frame 0: all are new
+    # nothing moves but tracking's jitter (a few points past 1 px): 2 % of the growth measured
+    assert new["moving"][1:].sum() < 0.1 * new["all"][1:].sum()
+    assert new["new"][1:].sum() <= new["moving"][1:].sum()
+
+
+def test_image_motion_is_the_median_over_the_following_cameras():
+    from pointtraj.reconstruct.track import _image_motion
+
+    obs = np.full((3, 3, 2), np.nan)
+    obs[:, 0] = [[3.0, 4.0], [0.0, 1.0], [0.6, 0.8]]  # point 0 moved 5, 1 and 1 px
+    obs[0, 1] = [0.0, 2.0]  # point 1: 2 px in the one camera that follows it
+    obs[2, 2] = [np.nan, 1.0]  # point 2: no camera follows it
+    previous = np.zeros((3, 3, 2))
+    np.testing.assert_allclose(_image_motion(obs, previous), [1.0, 2.0, 0.0])
+    with pytest.raises(ValidationError, match="seeds"):
+        DensifyConfig(seeds="some")
