@@ -56,3 +56,18 @@ def test_global_density_scales_with_pixel_count(tmp_path):
 def test_bad_voxel_size():
     with pytest.raises(ValidationError, match="voxel size"):
         analyze_rig(ring(2), voxel=0.0)
+
+
+def test_rig_info_prints_the_common_view(tmp_path):
+    """`rig info` gives the capture volume the reconstruction uses, in the rig's scale."""
+    from click.testing import CliRunner
+
+    from pointtraj.cli import main
+    from pointtraj.rigio import save_rig
+    from pointtraj.synth.presets import make_rig
+
+    save_rig(make_rig("narrow7"), tmp_path / "narrow.toml")
+    res = CliRunner().invoke(main, ["rig", "info", str(tmp_path / "narrow.toml")])
+    assert res.exit_code == 0, res.output
+    line = next(x for x in res.output.splitlines() if x.startswith("common view"))
+    assert "seen by >= 2 cameras" in line and " mm " in line and "mm^3" in line

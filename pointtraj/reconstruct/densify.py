@@ -55,9 +55,11 @@ class DensifyConfig:
 
     Attributes
     ----------
-    enabled : bool
-        Run densification whenever matching runs (off by default; on in the pipelines of rigs
-        with wide baselines).
+    enabled : bool or None
+        Run densification whenever matching runs. None (the default, the key left out): chosen
+        from the rig by the reconstruction (:meth:`~.config.ReconstructConfig.for_rig`): on
+        where the features are sparse over the image (fewer than 20,000 per megapixel), off
+        elsewhere; functions given this config directly read None as off.
     step_px : float
         Grid spacing of candidate pixels in each reference camera.
     radius_px : float
@@ -103,7 +105,7 @@ class DensifyConfig:
         At most this many new points per frame (bounds the cost).
     """
 
-    enabled: bool = False
+    enabled: bool | None = None
     step_px: float = 6.0
     radius_px: float = 24.0
     depth_range_m: float = 0.08
