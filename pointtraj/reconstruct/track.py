@@ -369,6 +369,14 @@ class Tracker:
                 if self.config.views.enabled
                 else "points will mostly keep the two views they were matched in",
             )
+        alone = ~(angles <= self.config.densify.max_angle_deg).any(axis=1)  # (C,)
+        if self.config.densify.enabled and alone.any() and len(rig) > 1:
+            logger.warning(
+                "densification does not start from cameras %s: no other camera's optical axis "
+                "is within [reconstruct.densify] max_angle_deg = %.0f degrees of theirs",
+                ", ".join(rig.names[c] for c in np.flatnonzero(alone)),
+                self.config.densify.max_angle_deg,
+            )
         lonely = [rig.names[c] for c in range(len(rig)) if not np.isin(c, self.edges).any()]
         if lonely and len(rig) > 1:
             logger.warning(
