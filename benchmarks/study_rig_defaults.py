@@ -79,14 +79,14 @@ def main() -> None:
         angles = np.degrees(np.arccos(np.clip(rig.R[:, 2] @ rig.R[:, 2].T, -1, 1)))
         i, j = np.triu_indices(len(rig), 1)
         within = int(np.sum(angles[i, j] <= cfg.max_angle_deg + 1e-9))
-        c = rig_choices(rig, cfg.matching.num_features)
+        c = rig_choices(rig)
         summary = view.summary().split(": ", 1)[1]
         print(
             f"| {name} | {len(rig)} | >= {view.min_cameras} cameras: {summary} | {within} "
             f"| {g.num_edges} | {wide_volume_rule_pairs(rig)} | guided "
             f"{'on' if c.guided else 'off'}, GMS {c.gms_threshold:g}, densify "
-            f"{'on' if c.densify else 'off'} ({c.features_per_mp:,.0f} features/MP, nearest "
-            f"partner {c.nearest_deg:.1f} deg) |"
+            f"{'on' if c.densify else 'off'} ({c.megapixels:.2f} MP, nearest partner "
+            f"{c.nearest_deg:.1f} deg) |"
         )
 
 

@@ -328,7 +328,7 @@ class ReconstructConfig:
             return self
         from .views import retry_periods
 
-        choice = rig_choices(rig, m.num_features)
+        choice = rig_choices(rig)
         guided = choice.guided if m.guided is None else m.guided
         gms = choice.gms_threshold if m.gms_threshold is None else m.gms_threshold
         densify = choice.densify if d.enabled is None else d.enabled
@@ -361,15 +361,18 @@ class ReconstructConfig:
         )
 
 
-#: Features per megapixel below which a rig's features are sparse: guided matching and
-#: densification then fill the image (paper69's 1280x1024 at 12,000 features: 9,155; the
-#: demo's 640x512: 36,621; tiny4's 320x256: 146,484).
-SPARSE_FEATURES_PER_MP = 20000.0
+#: Megapixels (median image) from which a rig's images are large: the default 12,000
+#: features then lie fewer than 20,000 to the megapixel, too sparse to cover the surfaces, and
+#: guided matching and densification fill the image (paper69's 1280x1024: 1.31 MP, 9,155
+#: features per MP; caliscope's webcams 0.92; the demo's 640x512: 0.33 MP, 36,621 per MP;
+#: tiny4's 320x256: 0.08). It does not follow ``num_features``, so that a smaller budget set
+#: for speed does not switch the matching mode.
+LARGE_IMAGE_MP = 0.6
 #: Median angle (degrees) between each camera's axis and its nearest partner's at or below
 #: which a rig is dense: a third, close view rejects guided matching's wrong matches
 #: (paper69: 10.3; the demo's ring: 43.8).
 CLOSE_PARTNER_DEG = 25.0
-#: Rigs of at most this many cameras with sparse features get a lenient GMS threshold
+#: Rigs of at most this many cameras with large images get a lenient GMS threshold
 #: (:data:`LENIENT_GMS`): each point has few pairs to be found in (Pose2Sim's 4 cameras).
 FEW_CAMERAS = 8
 #: The lenient GMS threshold (``pipelines/pose2sim_demo.toml`` measures 2 against 6).
@@ -385,8 +388,8 @@ class RigChoice:
     guided : bool
     gms_threshold : float
     densify : bool
-    features_per_mp : float
-        Features per megapixel of the median image.
+    megapixels : float
+        Of the median image.
     nearest_deg : float
         Median over cameras of the angle to the nearest partner's axis (degrees).
     reason : str
@@ -396,31 +399,29 @@ class RigChoice:
     guided: bool
     gms_threshold: float
     densify: bool
-    features_per_mp: float
+    megapixels: float
     nearest_deg: float
     reason: str
 
 
-def rig_choices(rig: CameraRig, num_features: int) -> RigChoice:
+def rig_choices(rig: CameraRig) -> RigChoice:
     """Matching and densification settings from the rig's baselines and resolution.
 
-    - Sparse features (fewer than :data:`SPARSE_FEATURES_PER_MP` of ``num_features`` per
-      megapixel of the median image): guided matching and densification on. On paper69
+    - Large images (the median image at least :data:`LARGE_IMAGE_MP` megapixels, where the
+      default 12,000 features are sparse): guided matching and densification on. On paper69
       (1280x1024) they give 2.8 times the points on the actors at a lower error; on Pose2Sim's
       and caliscope's webcams the defaults found 0-152 matches a frame.
     - Close partners (each camera's nearest axis within :data:`CLOSE_PARTNER_DEG`, median):
       guided matching on (paper69: more points, lower errors than brute force).
     - Otherwise (the demo's 8 cameras 44 degrees apart at 640x512): both off, where guided
       matching lets wrong matches on repeated texture through.
-    - GMS: :data:`LENIENT_GMS` on rigs of at most :data:`FEW_CAMERAS` cameras with sparse
-      features, :data:`~.matching.GMS_THRESHOLD` elsewhere.
+    - GMS: :data:`LENIENT_GMS` on rigs of at most :data:`FEW_CAMERAS` cameras with large
+      images, :data:`~.matching.GMS_THRESHOLD` elsewhere.
 
     Parameters
     ----------
     rig : CameraRig
         C cameras.
-    num_features : int
-        Features detected per image (``[reconstruct.matching] num_features``).
 
     Returns
     -------
@@ -430,23 +431,22 @@ def rig_choices(rig: CameraRig, num_features: int) -> RigChoice:
 
     C = len(rig)
     mp = float(np.median(rig.sizes.prod(axis=1))) / 1e6
-    per_mp = num_features / max(mp, 1e-9)
     angles = axis_angles(rig)
     np.fill_diagonal(angles, np.inf)
     nearest = float(np.median(angles.min(axis=1))) if C > 1 else 180.0
-    sparse = per_mp < SPARSE_FEATURES_PER_MP
+    sparse = mp >= LARGE_IMAGE_MP
     close = nearest <= CLOSE_PARTNER_DEG
     few = C <= FEW_CAMERAS
     reason = (
-        f"{C} cameras, {num_features} features per {mp:.2f} MP image = {per_mp:,.0f} per MP "
-        f"({'sparse: <' if sparse else 'dense: >='} {SPARSE_FEATURES_PER_MP:,.0f}), nearest "
-        f"partner {nearest:.1f} deg (median; close: <= {CLOSE_PARTNER_DEG:.0f})"
+        f"{C} cameras, {mp:.2f} MP images ({'large: >=' if sparse else 'small: <'} "
+        f"{LARGE_IMAGE_MP:g}), nearest partner {nearest:.1f} deg (median; close: <= "
+        f"{CLOSE_PARTNER_DEG:.0f})"
     )
     return RigChoice(
         guided=sparse or close,
         gms_threshold=LENIENT_GMS if (sparse and few) else GMS_THRESHOLD,
         densify=sparse,
-        features_per_mp=per_mp,
+        megapixels=mp,
         nearest_deg=nearest,
         reason=reason,
     )

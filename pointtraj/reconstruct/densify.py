@@ -58,8 +58,8 @@ class DensifyConfig:
     enabled : bool or None
         Run densification whenever matching runs. None (the default, the key left out): chosen
         from the rig by the reconstruction (:meth:`~.config.ReconstructConfig.for_rig`): on
-        where the features are sparse over the image (fewer than 20,000 per megapixel), off
-        elsewhere; functions given this config directly read None as off.
+        where the images are large (0.6 megapixels and more, where the default features are
+        sparse), off elsewhere; functions given this config directly read None as off.
     step_px : float
         Grid spacing of candidate pixels in each reference camera.
     radius_px : float

@@ -71,8 +71,8 @@ class MatchingConfig:
     gms_threshold : float or None
         GMS ``thresholdFactor``: the higher, the fewer matches survive. None (the default, the
         key left out): chosen from the rig by the reconstruction
-        (:meth:`~.config.ReconstructConfig.for_rig`: 2 on rigs of at most 8 cameras with sparse
-        features, :data:`GMS_THRESHOLD` elsewhere); functions given this config directly read
+        (:meth:`~.config.ReconstructConfig.for_rig`: 2 on rigs of at most 8 cameras with large
+        images, :data:`GMS_THRESHOLD` elsewhere); functions given this config directly read
         None as :data:`GMS_THRESHOLD`.
     gms_rotation, gms_scale : bool
         Let GMS search over rotations / scales (off for rigs of upright cameras).
@@ -83,7 +83,8 @@ class MatchingConfig:
         between a keypoint and the epipolar line of its match.
     guided : bool or None
         None (the default, the key left out): chosen from the rig by the reconstruction
-        (:meth:`~.config.ReconstructConfig.for_rig`: on where the features are sparse over the
+        (:meth:`~.config.ReconstructConfig.for_rig`: on where the images are large (0.6 MP and
+        more) over the
         image or the cameras have close partners, off elsewhere); functions given this config
         directly read None as off. Epipolar-guided matching: each keypoint is compared only with the keypoints of the other
         image within ``epipolar_px`` of its epipolar line (known calibration), with Lowe's ratio

@@ -56,11 +56,13 @@ def test_for_rig_keeps_what_is_set(caplog):
 
 
 def test_rig_choices_figures():
-    c = rig_choices(make_rig("paper69"), 12000)
-    assert c.features_per_mp == pytest.approx(12000 / 1.31072)
+    c = rig_choices(make_rig("paper69"))
+    assert c.megapixels == pytest.approx(1.31072)
     assert c.nearest_deg == pytest.approx(10.3, abs=0.1)
-    # More features per image make the same rig's features dense: no densification.
-    assert not rig_choices(make_rig("lab4"), 40000).densify
+    assert "1.31 MP images (large" in c.reason
+    # A smaller feature budget (for speed) does not switch the matching mode.
+    small = ReconstructConfig(matching=MatchingConfig(num_features=400))
+    assert small.for_rig(make_rig("ring8")).matching.guided is False
 
 
 def test_capture_volume_and_overlap_keys(tmp_path, caplog):
