@@ -369,9 +369,11 @@ class ReconstructConfig:
 #: for speed does not switch the matching mode.
 LARGE_IMAGE_MP = 0.6
 #: Median angle (degrees) between each camera's axis and its nearest partner's at or below
-#: which a rig is dense: a third, close view rejects guided matching's wrong matches
-#: (paper69: 10.3; the demo's ring: 43.8).
+#: which a rig of at least :data:`DENSE_RIG_CAMERAS` cameras is dense: other close views then
+#: reject guided matching's wrong matches (paper69: 10.3; the demo's ring: 43.8).
 CLOSE_PARTNER_DEG = 25.0
+#: Cameras a dense rig has at least (a dome; paper69: 69).
+DENSE_RIG_CAMERAS = 16
 #: Rigs of at most this many cameras with large images get a lenient GMS threshold
 #: (:data:`LENIENT_GMS`): each point has few pairs to be found in (Pose2Sim's 4 cameras).
 FEW_CAMERAS = 8
@@ -411,8 +413,9 @@ def rig_choices(rig: CameraRig) -> RigChoice:
       default 12,000 features are sparse): guided matching and densification on. On paper69
       (1280x1024) they give 2.8 times the points on the actors at a lower error; on Pose2Sim's
       and caliscope's webcams the defaults found 0-152 matches a frame.
-    - Close partners (each camera's nearest axis within :data:`CLOSE_PARTNER_DEG`, median):
-      guided matching on (paper69: more points, lower errors than brute force).
+    - A dense rig (at least :data:`DENSE_RIG_CAMERAS` cameras, each camera's nearest axis
+      within :data:`CLOSE_PARTNER_DEG`, median): guided matching on (paper69: more points,
+      lower errors than brute force; it is what ``paper69q``'s small images get).
     - Otherwise (the demo's 8 cameras 44 degrees apart at 640x512): both off, where guided
       matching lets wrong matches on repeated texture through.
     - GMS: :data:`LENIENT_GMS` on rigs of at most :data:`FEW_CAMERAS` cameras with large
@@ -435,12 +438,12 @@ def rig_choices(rig: CameraRig) -> RigChoice:
     np.fill_diagonal(angles, np.inf)
     nearest = float(np.median(angles.min(axis=1))) if C > 1 else 180.0
     sparse = mp >= LARGE_IMAGE_MP
-    close = nearest <= CLOSE_PARTNER_DEG
+    close = nearest <= CLOSE_PARTNER_DEG and C >= DENSE_RIG_CAMERAS
     few = C <= FEW_CAMERAS
     reason = (
         f"{C} cameras, {mp:.2f} MP images ({'large: >=' if sparse else 'small: <'} "
-        f"{LARGE_IMAGE_MP:g}), nearest partner {nearest:.1f} deg (median; close: <= "
-        f"{CLOSE_PARTNER_DEG:.0f})"
+        f"{LARGE_IMAGE_MP:g}), nearest partner {nearest:.1f} deg (median; a dense rig: <= "
+        f"{CLOSE_PARTNER_DEG:.0f} on >= {DENSE_RIG_CAMERAS} cameras)"
     )
     return RigChoice(
         guided=sparse or close,
