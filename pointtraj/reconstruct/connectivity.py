@@ -406,9 +406,9 @@ def working_depths(rig: CameraRig, min_angle_deg: float = 2.0) -> np.ndarray:
         s = (wd_i - b * wd_j) / den  # depth along axis i
         u = (b * wd_i - wd_j) / den  # depth along axis j
     ok &= (s > 0) & (u > 0)
+    has = ok.any(axis=1)
     depth = np.full(C, 2.0 * spacing)
-    for i in np.flatnonzero(ok.any(axis=1)):  # C medians of at most C values each
-        depth[i] = float(np.median(s[i, ok[i]]))
+    depth[has] = np.nanmedian(np.where(ok, s, np.nan)[has], axis=1)
     return depth
 
 
