@@ -79,3 +79,18 @@ def test_a_centimetre_rig_gives_the_scaled_figures_in_small_units():
     # The centre figure is an area density; the paper's "> 60" is pixels seeing a 1 cm cube.
     assert "px/cm^2  (paper: > 60 pixels seeing a 1 cm cube" in head[2]
     assert "(paper: > 60 px/cm^3)" not in big.report()
+
+
+def test_rig_info_prints_the_common_view(tmp_path):
+    """`rig info` gives the capture volume the reconstruction uses, in the rig's scale."""
+    from click.testing import CliRunner
+
+    from pointtraj.cli import main
+    from pointtraj.rigio import save_rig
+    from pointtraj.synth.presets import make_rig
+
+    save_rig(make_rig("narrow7"), tmp_path / "narrow.toml")
+    res = CliRunner().invoke(main, ["rig", "info", str(tmp_path / "narrow.toml")])
+    assert res.exit_code == 0, res.output
+    line = next(x for x in res.output.splitlines() if x.startswith("common view"))
+    assert "seen by >= 2 cameras" in line and " mm " in line and "mm^3" in line

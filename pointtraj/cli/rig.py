@@ -97,6 +97,10 @@ def info(path: str, voxel: float, radius: float, height: float, out: str | None)
     coverage = analyze_rig(cams, CaptureVolume(radius=radius, height=height), voxel)
     click.echo(f"{path}: {len(cams)} cameras")
     click.echo(coverage.report())
+    if len(cams) > 1:  # the volume the reconstruction matches camera pairs in
+        from ..reconstruct.connectivity import common_view
+
+        click.echo(common_view(cams).summary())
     if out is not None:
         png = Path(out) / "rig_coverage.png"
         png.parent.mkdir(parents=True, exist_ok=True)

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import logging
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal
 
+import numpy as np
+
+from ..camera import CameraRig
 from ..errors import ValidationError
+from ..geometry import axis_angles
 from .densify import DensifyConfig
 from .matching import MatchingConfig
 from .stitch import StitchConfig
@@ -15,7 +20,9 @@ from .views import ViewsConfig
 if TYPE_CHECKING:  # pragma: no cover
     from .triangulate import TriangulationConfig
 
-__all__ = ["ReconstructConfig"]
+__all__ = ["ReconstructConfig", "RigChoice", "rig_choices"]
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -93,6 +100,19 @@ class ReconstructConfig:
         Z-buffer cell size of the occlusion test.
     max_angle_deg : float
         Camera pairs whose optical axes differ by more are not matched (connectivity graph).
+    capture_volume : ((3,), (3,)) tuple of float, optional
+        The capture volume ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` in metres, where the
+        camera pairs' shared view is measured. Left out (the default): the cameras' common
+        view, from their frusta (:func:`~.connectivity.common_view`: the region that a third
+        of the cameras, at least 2, see between 0.2 and 1.5 times their working distance);
+        ``pointtraj rig info`` prints it.
+    min_pair_overlap : float
+        A camera pair within ``max_angle_deg`` is matched only when its shared view of the
+        capture volume is at least this fraction of the rig's reference shared view (the
+        median over cameras of each camera's best pair), so the cut-off follows the rig: it
+        keeps the demo's, paper69's and caliscope's pairs as the earlier fixed 0.05 did, and 18
+        of the 18 pairs within 90 degrees of the narrow-field ``narrow7`` preset (the fixed
+        cut-off in the earlier volume: 0); ``docs/reconstruction.md``, "Rig-derived defaults".
     max_pairs_per_camera : int
         Keep only this many smallest-angle partners per camera (0: all within
         ``max_angle_deg``); bounds the matching cost of large rigs. Rigs of up to 13 cameras
@@ -142,10 +162,12 @@ class ReconstructConfig:
         for ordinary steps), against 5 mm at 1 cm, which joins twice as many, mostly
         neighbouring points.
     matching : MatchingConfig
-        Feature detection and matching (table ``[reconstruct.matching]``).
+        Feature detection and matching (table ``[reconstruct.matching]``). ``guided`` and
+        ``gms_threshold``, when left out, are chosen from the rig (:meth:`for_rig`).
     densify : DensifyConfig
         Patch densification around the frame's points, for wide baselines where features and
-        view expansion find little (table ``[reconstruct.densify]``; off by default).
+        view expansion find little (table ``[reconstruct.densify]``; ``enabled``, when left
+        out, is chosen from the rig: :meth:`for_rig`).
     views : ViewsConfig
         View discovery by a plane sweep, at any baseline: every point is searched in the
         cameras that should see it and that flow (``expand_views``) cannot reach (table
@@ -185,6 +207,8 @@ class ReconstructConfig:
     occlusion_min_m: float = 0.01
     occlusion_cell_px: float = 8.0
     max_angle_deg: float = 90.0
+    capture_volume: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    min_pair_overlap: float = 0.2
     max_pairs_per_camera: int = 12
     match_every: int = 1
     expand_views: bool = False
@@ -221,6 +245,13 @@ class ReconstructConfig:
             "occlusion_min_m": 0 <= self.occlusion_min_m <= max(self.occlusion_depth_m, 0),
             "occlusion_cell_px": self.occlusion_cell_px > 0,
             "max_angle_deg": 0 < self.max_angle_deg <= 180,
+            "capture_volume": self.capture_volume is None
+            or (
+                len(self.capture_volume) == 2
+                and all(len(c) == 3 for c in self.capture_volume)
+                and all(a <= b for a, b in zip(*self.capture_volume, strict=True))
+            ),
+            "min_pair_overlap": 0 <= self.min_pair_overlap <= 1,
             "max_pairs_per_camera": self.max_pairs_per_camera >= 0,
             "match_every": self.match_every >= 1,
             "expand_max_angle_deg": 0 < self.expand_max_angle_deg <= 180,
@@ -267,3 +298,158 @@ class ReconstructConfig:
             min_views=self.min_views,
             seed=self.seed,
         )
+
+    def for_rig(self, rig: CameraRig, *, log: bool = True) -> ReconstructConfig:
+        """This config with the settings left out chosen from the rig, and the choice logged.
+
+        ``matching.guided``, ``matching.gms_threshold`` and ``densify.enabled`` left out (None)
+        are chosen from the rig's baselines and resolution (:func:`rig_choices`), and
+        ``cover_visible = "auto"`` from its camera count; set ones are kept. The choice is
+        logged at INFO, with its reasons.
+
+        Parameters
+        ----------
+        rig : CameraRig
+        log : bool
+            Log the choice (when something was left to choose).
+
+        Returns
+        -------
+        ReconstructConfig
+            With no setting left to the rig (unchanged when none was).
+        """
+        m, d = self.matching, self.densify
+        if (
+            m.guided is not None
+            and m.gms_threshold is not None
+            and d.enabled is not None
+            and self.cover_visible != "auto"
+        ):
+            return self
+        from .views import retry_periods
+
+        choice = rig_choices(rig)
+        guided = choice.guided if m.guided is None else m.guided
+        gms = choice.gms_threshold if m.gms_threshold is None else m.gms_threshold
+        densify = choice.densify if d.enabled is None else d.enabled
+        every = retry_periods(self.views, len(rig))[0]
+        cover = self.cover_visible
+        if cover == "auto":
+            cover = "on" if every > 1 else "off"
+        if log:
+
+            def how(value: object, left: object) -> str:
+                return f"{value} ({'from the rig' if left is None else 'set'})"
+
+            logger.info(
+                "rig-derived settings: %s; matching: guided %s, GMS threshold %s; "
+                "densification %s; cover_visible %s (view discovery searches each camera "
+                "every %d frame%s)",
+                choice.reason,
+                how("on" if guided else "off", m.guided),
+                how(f"{gms:g}", m.gms_threshold),
+                how("on" if densify else "off", d.enabled),
+                how(cover, None if self.cover_visible == "auto" else cover),
+                every,
+                "" if every == 1 else "s",
+            )
+        return replace(
+            self,
+            cover_visible=cover,
+            matching=replace(m, guided=guided, gms_threshold=gms),
+            densify=replace(d, enabled=densify),
+        )
+
+
+#: Megapixels (median image) from which a rig's images are large: the default 12,000
+#: features then lie fewer than 20,000 to the megapixel, too sparse to cover the surfaces, and
+#: guided matching and densification fill the image (paper69's 1280x1024: 1.31 MP, 9,155
+#: features per MP; caliscope's webcams 0.92; the demo's 640x512: 0.33 MP, 36,621 per MP;
+#: tiny4's 320x256: 0.08). It does not follow ``num_features``, so that a smaller budget set
+#: for speed does not switch the matching mode.
+LARGE_IMAGE_MP = 0.6
+#: Median angle (degrees) between each camera's axis and its nearest partner's at or below
+#: which a rig of at least :data:`DENSE_RIG_CAMERAS` cameras is dense: other close views then
+#: reject guided matching's wrong matches (paper69: 10.3; the demo's ring: 43.8).
+CLOSE_PARTNER_DEG = 25.0
+#: Cameras a dense rig has at least (a dome; paper69: 69).
+DENSE_RIG_CAMERAS = 16
+#: Rigs of at most this many cameras with large images get a lenient GMS threshold
+#: (:data:`LENIENT_GMS`): each point has few pairs to be found in (Pose2Sim's 4 cameras).
+FEW_CAMERAS = 8
+#: The lenient GMS threshold (``pipelines/pose2sim_demo.toml`` measures 2 against 6).
+LENIENT_GMS = 2.0
+
+
+@dataclass(frozen=True)
+class RigChoice:
+    """Matching and densification settings chosen from a rig (:func:`rig_choices`).
+
+    Attributes
+    ----------
+    guided : bool
+    gms_threshold : float
+    densify : bool
+    megapixels : float
+        Of the median image.
+    nearest_deg : float
+        Median over cameras of the angle to the nearest partner's axis (degrees).
+    reason : str
+        One line: the rig's figures behind the choice.
+    """
+
+    guided: bool
+    gms_threshold: float
+    densify: bool
+    megapixels: float
+    nearest_deg: float
+    reason: str
+
+
+def rig_choices(rig: CameraRig) -> RigChoice:
+    """Matching and densification settings from the rig's baselines and resolution.
+
+    - Large images (the median image at least :data:`LARGE_IMAGE_MP` megapixels, where the
+      default 12,000 features are sparse): guided matching and densification on. On paper69
+      (1280x1024) they give 2.8 times the points on the actors at a lower error; on Pose2Sim's
+      and caliscope's webcams the defaults found 0-152 matches a frame.
+    - A dense rig (at least :data:`DENSE_RIG_CAMERAS` cameras, each camera's nearest axis
+      within :data:`CLOSE_PARTNER_DEG`, median): guided matching on (paper69: more points,
+      lower errors than brute force; it is what ``paper69q``'s small images get).
+    - Otherwise (the demo's 8 cameras 44 degrees apart at 640x512): both off, where guided
+      matching lets wrong matches on repeated texture through.
+    - GMS: :data:`LENIENT_GMS` on rigs of at most :data:`FEW_CAMERAS` cameras with large
+      images, :data:`~.matching.GMS_THRESHOLD` elsewhere.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+
+    Returns
+    -------
+    RigChoice
+    """
+    from .matching import GMS_THRESHOLD
+
+    C = len(rig)
+    mp = float(np.median(rig.sizes.prod(axis=1))) / 1e6
+    angles = axis_angles(rig)
+    np.fill_diagonal(angles, np.inf)
+    nearest = float(np.median(angles.min(axis=1))) if C > 1 else 180.0
+    sparse = mp >= LARGE_IMAGE_MP
+    close = nearest <= CLOSE_PARTNER_DEG and C >= DENSE_RIG_CAMERAS
+    few = C <= FEW_CAMERAS
+    reason = (
+        f"{C} cameras, {mp:.2f} MP images ({'large: >=' if sparse else 'small: <'} "
+        f"{LARGE_IMAGE_MP:g}), nearest partner {nearest:.1f} deg (median; a dense rig: <= "
+        f"{CLOSE_PARTNER_DEG:.0f} on >= {DENSE_RIG_CAMERAS} cameras)"
+    )
+    return RigChoice(
+        guided=sparse or close,
+        gms_threshold=LENIENT_GMS if (sparse and few) else GMS_THRESHOLD,
+        densify=sparse,
+        megapixels=mp,
+        nearest_deg=nearest,
+        reason=reason,
+    )

@@ -26,9 +26,12 @@ from ..geometry import axis_angles
 
 __all__ = [
     "ConnectivityGraph",
+    "CommonView",
     "build_connectivity",
+    "common_view",
     "confirm_connectivity",
     "estimate_capture_volume",
+    "working_depths",
 ]
 
 logger = logging.getLogger(__name__)
@@ -316,56 +319,213 @@ def _opt_array(value: object, dtype: type) -> np.ndarray | None:
     return None if value is None else np.asarray(value, dtype=dtype)
 
 
-def estimate_capture_volume(rig: CameraRig) -> np.ndarray:
-    """Guess the capture volume from where the cameras look.
+@dataclass(frozen=True)
+class CommonView:
+    """The region the cameras' frusta share (:func:`common_view`).
 
-    The centre is the least-squares point closest to all optical axes; the half-size is half
-    the median camera distance to it, so a ring of radius r gives a cube of side r centred
-    where the axes meet. If the axes are (near) parallel or meet behind the cameras, the
-    centre is placed in front of the rig, twice the median camera spacing along the mean
-    viewing direction.
+    Attributes
+    ----------
+    box : (2, 3) float ndarray
+        ``[min_corner, max_corner]`` (metres) of the region: the 1st and 99th percentiles of its
+        sampled points along each axis.
+    min_cameras : int
+        A point is in the region when at least this many cameras see it within their depth
+        ranges.
+    depth_range : (C, 2) float ndarray
+        Each camera's ``[near, far]`` depth along its optical axis (metres).
+    volume_m3 : float
+        Estimated volume of the region itself (not of its box), cubic metres.
+    samples : int
+        Sampled points that fell in the region.
+    """
+
+    box: np.ndarray
+    min_cameras: int
+    depth_range: np.ndarray
+    volume_m3: float
+    samples: int
+
+    def summary(self) -> str:
+        """One line: the box's size and centre and the region's volume, in the rig's scale."""
+        size = self.box[1] - self.box[0]
+        unit, k = _length_unit(float(size.max()))
+        centre = self.box.mean(axis=0)
+        return (
+            f"common view (seen by >= {self.min_cameras} cameras within their depth range): "
+            f"box {' x '.join(f'{k * s:.3g}' for s in size)} {unit} centred at "
+            f"({', '.join(f'{k * c:.3g}' for c in centre)}) {unit}, region "
+            f"{self.volume_m3 * k**3:.3g} {unit}^3"
+        )
+
+
+def _length_unit(extent_m: float) -> tuple[str, float]:
+    """The unit to print a length of about ``extent_m`` metres in, and the factor from metres."""
+    if extent_m < 0.1:
+        return "mm", 1000.0
+    if extent_m < 1.0:
+        return "cm", 100.0
+    return "m", 1.0
+
+
+def working_depths(rig: CameraRig, min_angle_deg: float = 2.0) -> np.ndarray:
+    """Each camera's working distance: where its optical axis passes closest to the others'.
+
+    For every other camera whose axis is at least ``min_angle_deg`` from its own, the point of
+    the camera's axis nearest to the other axis (both in front of their cameras) gives a depth;
+    the working distance is their median. A camera with no such partner (parallel axes, or
+    axes that meet behind the cameras) gets twice the median spacing of the rig's cameras.
 
     Parameters
     ----------
     rig : CameraRig
+        C cameras.
+    min_angle_deg : float
+        Nearly parallel axes give no reliable nearest point and are skipped.
+
+    Returns
+    -------
+    (C,) float ndarray
+        Metres along each optical axis.
+    """
+    C = len(rig)
+    d = rig.R[:, 2]  # (C, 3)
+    spacing = 1.0
+    if C > 1:
+        gaps = np.linalg.norm(rig.C[:, None] - rig.C[None], axis=-1)  # (C, C)
+        spacing = float(np.median(gaps[np.triu_indices(C, 1)]))
+        spacing = spacing if spacing > 1e-12 else 1.0
+    # axes p_i + s d_i and p_j + u d_j: nearest points solve the 2x2 normal equations
+    b = np.clip(d @ d.T, -1.0, 1.0)  # (C, C) cos of the angle
+    w = rig.C[None, :, :] - rig.C[:, None, :]  # (C, C, 3): C_j - C_i
+    wd_i = np.einsum("ijk,ik->ij", w, d)  # w . d_i
+    wd_j = np.einsum("ijk,jk->ij", w, d)  # w . d_j
+    den = 1.0 - b**2
+    ok = den > np.sin(np.radians(min_angle_deg)) ** 2
+    np.fill_diagonal(ok, False)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (wd_i - b * wd_j) / den  # depth along axis i
+        u = (b * wd_i - wd_j) / den  # depth along axis j
+    ok &= (s > 0) & (u > 0)
+    has = ok.any(axis=1)
+    depth = np.full(C, 2.0 * spacing)
+    depth[has] = np.nanmedian(np.where(ok, s, np.nan)[has], axis=1)
+    return depth
+
+
+def common_view(
+    rig: CameraRig,
+    min_cameras: int | None = None,
+    *,
+    samples: int = 40000,
+    near: float = 0.2,
+    far: float = 1.5,
+    seed: int = 0,
+) -> CommonView:
+    """The capture volume from the cameras' frusta: the region seen by several cameras.
+
+    Each camera sees a frustum from ``near`` to ``far`` times its working distance
+    (:func:`working_depths`: where its axis passes the others'; a ring of radius r aimed at its
+    centre sees half way from its centre to the opposite cameras). Points are sampled uniformly in every frustum,
+    and those that at least ``min_cameras`` cameras see within their depth ranges form the
+    common view. Everything scales with the rig: the same rig at a thousandth of the size,
+    with the same images, gives the same region at a thousandth of the size.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    min_cameras : int, optional
+        Cameras a point of the region needs (default: a third of the rig, at least 2 and at
+        most C: 2 on rigs of up to 7 cameras, 3 on the demo's 8, 23 on paper69's 69, whose
+        common view is then a 2.9 x 2.8 x 3.1 m box around the paper's 3 m x 2.5 m stage).
+    samples : int
+        Points sampled over all the frusta.
+    near, far : float
+        The depth range, as fractions of the working distance.
+    seed : int
+        Seed of the sampler.
+
+    Returns
+    -------
+    CommonView
+        If no sample is seen by ``min_cameras`` cameras, the box of the points where the
+        cameras' axes meet (:func:`working_depths`) is used, with a warning.
+    """
+    C = len(rig)
+    k = max(2, int(round(C / 3))) if min_cameras is None else int(min_cameras)
+    k = min(max(k, 1), C)
+    work = working_depths(rig)
+    lo, hi = near * work, far * work  # (C,)
+    rng = np.random.default_rng(seed)
+    n = max(int(samples) // C, 200)
+    wh = rig.sizes.astype(float)  # (C, 2)
+    pix = rng.uniform(0.0, 1.0, size=(C, n, 2)) * wh[:, None, :]  # (C, n, 2)
+    # depth with density ~ z^2: uniform in the frustum's volume
+    z = np.cbrt(lo[:, None] ** 3 + rng.uniform(size=(C, n)) * (hi**3 - lo**3)[:, None])
+    xy = rig.normalized(pix)  # (C, n, 2)
+    cam = np.concatenate([xy * z[..., None], z[..., None]], axis=-1)  # (C, n, 3)
+    pts = (np.einsum("cji,cnj->cni", rig.R, cam) + rig.C[:, None, :]).reshape(-1, 3)
+    ok = np.all(np.isfinite(pts), axis=1)
+    pts, owner = pts[ok], np.repeat(np.arange(C), n)[ok]
+    proj = rig.project(pts)
+    inside = proj.in_image & (proj.depth >= lo[:, None]) & (proj.depth <= hi[:, None])
+    m = inside.sum(axis=0)  # (S,) cameras seeing each sample
+    sel = m >= k
+    # the region's volume: each frustum's samples weigh its volume / n, shared by the m frusta
+    x = (wh[:, 0] / rig.K[:, 0, 0]) * (wh[:, 1] / rig.K[:, 1, 1])  # image area at depth 1
+    frustum = x * (hi**3 - lo**3) / 3.0  # (C,)
+    volume = float(np.sum(frustum[owner[sel]] / n / np.maximum(m[sel], 1)))
+    if sel.sum() >= 10:
+        box = np.percentile(pts[sel], [1.0, 99.0], axis=0)
+    else:
+        meet = rig.C + work[:, None] * rig.R[:, 2]  # (C, 3)
+        box = np.stack([meet.min(axis=0), meet.max(axis=0)])
+        pad = 0.05 * float(np.median(work))
+        box = box + np.array([[-pad], [pad]])
+        logger.warning(
+            "capture volume: no point is seen by %d cameras within their depth ranges; "
+            "using the box of where their axes pass each other %s (set [reconstruct] "
+            "capture_volume to give it)",
+            k,
+            np.round(box, 4).tolist(),
+        )
+    return CommonView(box, k, np.stack([lo, hi], axis=1), volume, int(sel.sum()))
+
+
+def estimate_capture_volume(rig: CameraRig, min_cameras: int | None = None) -> np.ndarray:
+    """The capture volume's box from the cameras' frusta (:func:`common_view`).
+
+    Parameters
+    ----------
+    rig : CameraRig
+    min_cameras : int, optional
+        See :func:`common_view`.
 
     Returns
     -------
     (2, 3) float ndarray
         ``[min_corner, max_corner]`` in metres.
     """
-    d = rig.R[:, 2]  # (C, 3) viewing directions
-    proj = np.eye(3) - d[:, :, None] * d[:, None, :]  # (C, 3, 3) projectors off each axis
-    A = proj.sum(axis=0)
-    b = np.einsum("cij,cj->i", proj, rig.C)
-    ev = np.linalg.eigvalsh(A)
-    spacing = 1.0
-    if len(rig) > 1:
-        gaps = np.linalg.norm(rig.C[:, None] - rig.C[None], axis=-1)  # (C, C)
-        spacing = float(np.median(gaps[np.triu_indices(len(rig), 1)]))
-        spacing = spacing if spacing > 1e-9 else 1.0
-    if ev[0] > 1e-3 * ev[-1] and len(rig) > 1:
-        center = np.linalg.solve(A, b)
-        depth = np.einsum("ci,ci->c", center - rig.C, d)
-        if np.median(depth) <= 0:  # the axes meet behind the cameras: fall back
-            center = rig.C.mean(0) + d.mean(0) * 2 * spacing
-    else:
-        center = rig.C.mean(0) + d.mean(0) * 2 * spacing
-    half = 0.5 * float(np.median(np.linalg.norm(rig.C - center, axis=1)))
-    half = half if half > 1e-9 else 1.0
-    return np.stack([center - half, center + half])
+    return common_view(rig, min_cameras).box
 
 
 def build_connectivity(
     rig: CameraRig,
     max_angle_deg: float = 90.0,
-    min_overlap: float = 0.05,
+    min_overlap: float = 0.2,
     *,
     volume: np.ndarray | None = None,
     samples: int = 20000,
     seed: int = 0,
 ) -> ConnectivityGraph:
     """Connect the camera pairs worth matching.
+
+    A pair is kept when its viewing directions are at most ``max_angle_deg`` apart and its
+    shared view of the capture volume is at least ``min_overlap`` times the rig's reference:
+    the median, over the cameras, of each camera's best shared view with a partner within
+    ``max_angle_deg``. The cut-off is relative, so it does not depend on how large the volume
+    is against the cameras' fields of view. Dropped pairs are logged as warnings with their
+    reason, and a warning says when most pairs within the angle are dropped.
 
     Parameters
     ----------
@@ -374,11 +534,12 @@ def build_connectivity(
     max_angle_deg : float
         Largest angle between the two viewing directions of an edge (paper: 90 degrees).
     min_overlap : float
-        Smallest shared-view fraction of an edge: of the sampled volume points seen by either
-        camera (in front, inside the image), the fraction seen by both.
+        Smallest shared view of an edge, as a fraction of the rig's reference shared view. The
+        shared view of a pair is, of the sampled volume points seen by either camera (in front,
+        inside the image), the fraction seen by both.
     volume : (2, 3) float ndarray, optional
-        Capture volume ``[min_corner, max_corner]`` in metres (default:
-        :func:`estimate_capture_volume`).
+        Capture volume ``[min_corner, max_corner]`` in metres (default: the cameras' common
+        view, :func:`estimate_capture_volume`).
     samples : int
         Points sampled uniformly in the volume.
     seed : int
@@ -414,11 +575,14 @@ def build_connectivity(
     if int(samples) < 1:
         raise ValidationError(f"samples must be >= 1, got {samples!r}")
     if volume is None:
-        box = estimate_capture_volume(rig)
+        view = common_view(rig, seed=seed)
+        box, where = view.box, view.summary()
     else:
         box = check_array("volume", volume, (2, 3), finite=True)
         if np.any(box[1] < box[0]):
             raise ValidationError(f"volume: need [min_corner, max_corner], got {box.tolist()}")
+        where = f"capture volume {box.tolist()} (set)"
+    logger.info("connectivity: %s", where)
     C = len(rig)
     angles = axis_angles(rig)  # (C, C)
     rng = np.random.default_rng(seed)
@@ -429,12 +593,71 @@ def build_connectivity(
     either = n[:, None] + n[None, :] - both
     overlap = np.where(either > 0, both / np.maximum(either, 1), 0.0)
     i, j = np.triu_indices(C, 1)
-    keep = (angles[i, j] <= max_angle_deg + 1e-9) & (overlap[i, j] >= min_overlap)
+    by_angle = angles[i, j] <= max_angle_deg + 1e-9
+    # the reference shared view: each camera's best partner within the angle, median over cameras
+    near = np.zeros((C, C), bool)
+    near[i[by_angle], j[by_angle]] = True
+    near |= near.T
+    best = np.where(near, overlap, -1.0).max(axis=1)  # (C,)
+    reference = float(np.median(best[best >= 0])) if np.any(best >= 0) else 0.0
+    by_overlap = (overlap[i, j] >= min_overlap * reference) & (reference > 0)
+    keep = by_angle & by_overlap
     if np.any(n == 0):
         logger.warning(
-            "cameras %s see none of the sampled capture volume %s",
-            [rig.names[k] for k in np.flatnonzero(n == 0)],
-            box.tolist(),
+            "connectivity: cameras %s see none of the capture volume %s",
+            ", ".join(rig.names[k] for k in np.flatnonzero(n == 0)),
+            np.round(box, 4).tolist(),
+        )
+
+    def listed(sel: np.ndarray) -> str:
+        idx = np.flatnonzero(sel)
+        text = ", ".join(
+            f"{rig.names[i[k]]}-{rig.names[j[k]]} ({angles[i[k], j[k]]:.0f} deg, "
+            f"shared view {overlap[i[k], j[k]]:.2f})"
+            for k in idx[:6]
+        )
+        return text + (f" and {idx.size - 6} more" if idx.size > 6 else "")
+
+    if np.any(~by_angle):
+        logger.warning(
+            "connectivity: %d of %d camera pairs not matched: their viewing directions are more "
+            "than max_angle_deg = %.0f degrees apart: %s",
+            int((~by_angle).sum()),
+            i.size,
+            max_angle_deg,
+            listed(~by_angle),
+        )
+    dropped = by_angle & ~by_overlap
+    if np.any(dropped):
+        logger.warning(
+            "connectivity: %d of %d camera pairs within max_angle_deg not matched: they share "
+            "less than min_overlap = %.2f of the rig's reference shared view (%.2f) of the "
+            "%s: %s",
+            int(dropped.sum()),
+            int(by_angle.sum()),
+            min_overlap,
+            reference,
+            where,
+            listed(dropped),
+        )
+    if by_angle.sum() and 0 < reference < 0.1:
+        logger.warning(
+            "connectivity: the camera pairs share little of the %s (the median camera's best "
+            "pair: %.3f of what either sees): the volume is probably much larger than what the "
+            "cameras see together; set [reconstruct] capture_volume, or leave it out to take "
+            "the cameras' common view",
+            where,
+            reference,
+        )
+    if by_angle.sum() and keep.sum() < 0.5 * by_angle.sum():
+        logger.warning(
+            "connectivity: most of the rig is unused: %d of the %d camera pairs within "
+            "max_angle_deg = %.0f degrees are matched. If the subject is much smaller than the "
+            "capture volume, set it ([reconstruct] capture_volume = [[xmin, ymin, zmin], "
+            "[xmax, ymax, zmax]], metres); see `pointtraj rig info`",
+            int(keep.sum()),
+            int(by_angle.sum()),
+            max_angle_deg,
         )
     graph = ConnectivityGraph(
         camera_names=rig.names,
@@ -444,7 +667,12 @@ def build_connectivity(
         centers=rig.C.copy(),
         directions=rig.R[:, 2].copy(),
     )
-    logger.info("connectivity: %d of %d camera pairs kept", graph.num_edges, i.size)
+    logger.info(
+        "connectivity: %d of %d camera pairs kept (reference shared view %.2f)",
+        graph.num_edges,
+        i.size,
+        reference,
+    )
     return graph
 
 

@@ -55,9 +55,11 @@ class DensifyConfig:
 
     Attributes
     ----------
-    enabled : bool
-        Run densification whenever matching runs (off by default; on in the pipelines of rigs
-        with wide baselines).
+    enabled : bool or None
+        Run densification whenever matching runs. None (the default, the key left out): chosen
+        from the rig by the reconstruction (:meth:`~.config.ReconstructConfig.for_rig`): on
+        where the images are large (0.6 megapixels and more, where the default features are
+        sparse), off elsewhere; functions given this config directly read None as off.
     step_px : float
         Grid spacing of candidate pixels in each reference camera.
     radius_px : float
@@ -115,7 +117,7 @@ class DensifyConfig:
         follow the point) above which a tracked point seeds densification.
     """
 
-    enabled: bool = False
+    enabled: bool | None = None
     step_px: float = 6.0
     radius_px: float = 24.0
     depth_range_m: float = 0.08

@@ -33,7 +33,7 @@ from .config import ReconstructConfig
 from .framestore import FrameStore, assemble_records
 from .stitch import stitch_trajectories
 from .survive import trim_one_view_tails
-from .track import FrameRecord, Tracker, TrackState
+from .track import FrameRecord, Tracker, TrackState, config_edges
 
 __all__ = [
     "ChunkResult",
@@ -120,6 +120,9 @@ class ChunkTask:
         The trajectories alive at ``stop - 1`` are carried on, without new points, up to this
         frame (the next chunk's end; ``stop``: no tail, the last chunk).
     config : ReconstructConfig
+    edges : (E, 2) int64 ndarray, optional
+        The camera pairs to match (default: from the config, :func:`~.track.config_edges`);
+        :func:`reconstruct_capture` chooses them once, where their warnings are seen.
     """
 
     capture: Any
@@ -129,6 +132,7 @@ class ChunkTask:
     stop: int
     tail_stop: int
     config: ReconstructConfig
+    edges: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -188,16 +192,20 @@ def reconstruct_chunk(task: ChunkTask) -> ChunkResult:
     frames = range(task.start, task.stop)
     tracked, stops = 0, {}
     if not out.is_file():
-        traj, tracker, resumed = _track_frames(capture, folder, frames, task.config)
+        traj, tracker, resumed = _track_frames(
+            capture, folder, frames, task.config, edges=task.edges
+        )
         traj.save(out)
         tracked, stops = len(frames) - resumed, dict(tracker.stops)
     if tail is not None:
         state = FrameStore(folder, len(capture.rig)).read_state_at(task.stop - 1)
-        _carry_on(capture, state, task.tail_stop, task.config).save(tail)
+        _carry_on(capture, state, task.tail_stop, task.config, task.edges).save(tail)
     return ChunkResult(str(out), tail and str(tail), tracked, stops, time.process_time() - cpu0)
 
 
-def _carry_on(capture, state: TrackState, stop: int, cfg: ReconstructConfig) -> Bridge:
+def _carry_on(
+    capture, state: TrackState, stop: int, cfg: ReconstructConfig, edges: np.ndarray | None = None
+) -> Bridge:
     """Track the live trajectories of a state on to ``stop``, without new points (no matching,
     no densification), until they end: a chunk's tail (:class:`~.chunks.Bridge`, no joins).
     """
@@ -208,7 +216,7 @@ def _carry_on(capture, state: TrackState, stop: int, cfg: ReconstructConfig) -> 
         match_every=2**62,  # never at the frames stepped here: no new points
         densify=dataclasses.replace(cfg.densify, enabled=False),
     )
-    tracker = Tracker(rig, carry_cfg, state=state, first_frame=state.frame)
+    tracker = Tracker(rig, carry_cfg, edges, state=state, first_frame=state.frame)
     rows: list[FrameRecord] = []
     if len(state):
         tracker.set_previous_images([capture.read(n, state.frame) for n in names])
@@ -246,6 +254,7 @@ def _track_frames(
     *,
     write_clouds: bool = False,
     on_frame: Callable[[FrameRecord | None], None] | None = None,
+    edges: np.ndarray | None = None,
 ) -> tuple[Trajectories, Tracker, int]:
     """Track frames with one tracker into ``folder/state/`` (and ``folder/clouds/``), resuming.
 
@@ -273,7 +282,7 @@ def _track_frames(
         logger.info(
             "%s: resuming after frame %d (%d frames done)", folder, frames[resumed - 1], resumed
         )
-    tracker = Tracker(rig, cfg, state=state, first_frame=frames.start)
+    tracker = Tracker(rig, cfg, edges, state=state, first_frame=frames.start)
     if state is not None and resumed < len(frames):
         tracker.set_previous_images([capture.read(n, state.frame) for n in names])
     for t in frames[resumed:]:
@@ -370,14 +379,17 @@ def reconstruct_capture(
         raise ValidationError(
             f"frames {frames.start}:{frames.stop} must be a non-empty range within [0, {T})"
         )
+    # the rig-derived settings and camera pairs, chosen once here, where their log is seen
+    cfg = cfg.for_rig(rig)
+    edges = config_edges(rig, cfg)
     chunks = plan_chunks(frames, cfg.chunk_frames, cfg.chunk_overlap)
     if len(chunks) == 1:
         traj, tracker, _ = _track_frames(
-            capture, work, frames, cfg, write_clouds=True, on_frame=on_frame
+            capture, work, frames, cfg, write_clouds=True, on_frame=on_frame, edges=edges
         )
         _log_stops(tracker.stops)
     else:
-        traj = _reconstruct_chunks(capture, work, chunks, cfg, executor, on_frame)
+        traj = _reconstruct_chunks(capture, work, chunks, cfg, executor, on_frame, edges)
     stitched, new_id = stitch_trajectories(traj, cfg.stitch)
     final, dropped = trim_one_view_tails(stitched, cfg.visibility_threshold, cfg.min_views)
     if dropped:
@@ -404,6 +416,7 @@ def _reconstruct_chunks(
     cfg: ReconstructConfig,
     executor: Executor | None,
     on_frame: Callable[[FrameRecord | None], None] | None,
+    edges: np.ndarray | None = None,
 ) -> Trajectories:
     """Track every chunk through the executor and merge their stores (see
     :func:`reconstruct_capture`)."""
@@ -418,6 +431,7 @@ def _reconstruct_chunks(
             c.stop,
             chunks[k + 1].stop if k + 1 < len(chunks) else c.stop,
             cfg,
+            edges,
         )
         for k, c in enumerate(chunks)
     ]

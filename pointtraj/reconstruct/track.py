@@ -39,6 +39,7 @@ __all__ = [
     "TrackState",
     "FrameRecord",
     "Tracker",
+    "config_edges",
     "select_edges",
     "covered_by",
     "sample_colors",
@@ -144,7 +145,12 @@ class FrameRecord:
 
 
 def select_edges(
-    rig: CameraRig, max_angle_deg: float = 90.0, max_pairs_per_camera: int = 0
+    rig: CameraRig,
+    max_angle_deg: float = 90.0,
+    max_pairs_per_camera: int = 0,
+    *,
+    min_overlap: float = 0.2,
+    volume: np.ndarray | None = None,
 ) -> np.ndarray:
     """Camera pairs to match: the connectivity graph, optionally thinned per camera.
 
@@ -155,7 +161,11 @@ def select_edges(
         Pairs whose viewing directions differ by more are unlikely to match (paper Section 5).
     max_pairs_per_camera : int
         If positive, each camera keeps only its this-many smallest-angle partners (a pair is kept
-        when either camera keeps it).
+        when either camera keeps it); the pairs left out are logged as a warning.
+    min_overlap : float
+        Shared-view cut-off relative to the rig's (:func:`~.connectivity.build_connectivity`).
+    volume : (2, 3) float ndarray, optional
+        The capture volume (default: the cameras' common view).
 
     Returns
     -------
@@ -164,7 +174,7 @@ def select_edges(
     """
     from .connectivity import build_connectivity
 
-    graph = build_connectivity(rig, max_angle_deg=max_angle_deg)
+    graph = build_connectivity(rig, max_angle_deg, min_overlap, volume=volume)
     edges = np.sort(np.asarray(graph.edges, dtype=np.int64).reshape(-1, 2), axis=1)
     angles = np.asarray(graph.angles_deg, dtype=float).reshape(-1)
     if max_pairs_per_camera <= 0 or edges.size == 0:
@@ -177,7 +187,32 @@ def select_edges(
     sorted_cam = cam[order]
     rank = np.arange(order.size) - np.searchsorted(sorted_cam, sorted_cam, side="left")
     keep[eid[order[rank < max_pairs_per_camera]]] = True
+    if not keep.all():
+        logger.warning(
+            "connectivity: %d of %d camera pairs not matched: beyond both cameras' "
+            "max_pairs_per_camera = %d smallest-angle partners (it bounds the matching cost)",
+            int((~keep).sum()),
+            len(edges),
+            max_pairs_per_camera,
+        )
     return edges[keep]
+
+
+def config_edges(rig: CameraRig, config: ReconstructConfig) -> np.ndarray:
+    """:func:`select_edges` with a config's settings (``max_angle_deg``,
+    ``max_pairs_per_camera``, ``min_pair_overlap``, ``capture_volume``).
+
+    Returns
+    -------
+    (E, 2) int64 ndarray
+    """
+    return select_edges(
+        rig,
+        config.max_angle_deg,
+        config.max_pairs_per_camera,
+        min_overlap=config.min_pair_overlap,
+        volume=None if config.capture_volume is None else np.array(config.capture_volume),
+    )
 
 
 def covered_by(
@@ -309,10 +344,10 @@ class Tracker:
         first_frame: int | None = None,
     ) -> None:
         self.rig = rig
-        self.config = config or ReconstructConfig()
+        self.config = (config or ReconstructConfig()).for_rig(rig)
         self.tri_config = self.config.triangulation()
         if edges is None:
-            edges = select_edges(rig, self.config.max_angle_deg, self.config.max_pairs_per_camera)
+            edges = config_edges(rig, self.config)
         self.edges = check_array("edges", edges, (None, 2), dtype=np.int64)
         self.state = state if state is not None else TrackState.empty(len(rig))
         # view expansion by flow can only find something where two cameras are close enough
@@ -333,6 +368,14 @@ class Tracker:
                 "view discovery by plane sweep ([reconstruct.views]) searches every baseline"
                 if self.config.views.enabled
                 else "points will mostly keep the two views they were matched in",
+            )
+        alone = ~(angles <= self.config.densify.max_angle_deg).any(axis=1)  # (C,)
+        if self.config.densify.enabled and alone.any() and len(rig) > 1:
+            logger.warning(
+                "densification does not start from cameras %s: no other camera's optical axis "
+                "is within [reconstruct.densify] max_angle_deg = %.0f degrees of theirs",
+                ", ".join(rig.names[c] for c in np.flatnonzero(alone)),
+                self.config.densify.max_angle_deg,
             )
         lonely = [rig.names[c] for c in range(len(rig)) if not np.isin(c, self.edges).any()]
         if lonely and len(rig) > 1:

@@ -23,7 +23,20 @@ ring8      8        640x512     380       one ring, radius 2.4 m, height 1.4 m, 
 tiny4      4        320x256     190       one ring, radius 2.4 m, height 1.4 m, aimed at
                                           (0, 0, 0.85), 90 degrees apart (45 degrees
                                           offset); field of view 80.2 x 67.9 degrees
+lab4       4        1280x720    900       a webcam lab rig on one side of the room: an arc
+                                          of 120 degrees (cameras 40 degrees apart) of
+                                          radius 3 m, heights alternating 1.2 m / 2.0 m,
+                                          aimed at (0, 0, 0.9); field of view
+                                          70.8 x 43.6 degrees
+narrow7    7        1280x1024   21556     a narrow-field rig for a subject a few mm across
+                                          at the origin: 6 cameras on a ring 40 degrees
+                                          above it and 1 above it, all 11.8 cm away;
+                                          field of view 3.4 x 2.7 degrees (each camera
+                                          sees about 7 x 5.6 mm at the subject)
 =========  =======  ==========  ========  =============================================
+
+The synthetic scenes are human-sized: ``narrow7`` is for the rig-derived defaults (camera
+pairs, capture volume, matching choices); no scene is scaled to it.
 
 Camera names are ``cam00``, ``cam01``, ... in ring order (the lower ring first for ``paper69``).
 """
@@ -54,11 +67,14 @@ class RigPreset:
         ``build() -> CameraRig``.
     fps : float
         Frame rate of captures made with this rig.
+    target : (3,) tuple of float
+        The stage centre, which every camera must see (metres).
     """
 
     description: str
     build: Callable[[], CameraRig]
     fps: float = 30.0
+    target: tuple[float, float, float] = (0.0, 0.0, 0.9)
 
 
 def field_of_view(size: tuple[int, int], focal: float) -> tuple[float, float]:
@@ -169,6 +185,37 @@ def _tiny4() -> CameraRig:
     )
 
 
+def _lab4() -> CameraRig:
+    cams = []
+    for i, deg in enumerate((-60.0, -20.0, 20.0, 60.0)):
+        a = math.radians(deg)
+        centre = (3.0 * math.cos(a), 3.0 * math.sin(a), (1.2, 2.0)[i % 2])
+        cams.append(Camera.look_at(f"cam{i:02d}", centre, (0.0, 0.0, 0.9), (1280, 720), 900.0))
+    return CameraRig(cams)
+
+
+#: Focal length (px) of ``narrow7``: a 3.4 degree horizontal field of view at 1280 px.
+NARROW_FOCAL = 640.0 / math.tan(math.radians(1.7))
+
+
+def _narrow7() -> CameraRig:
+    distance, elevation = 0.118, math.radians(40.0)
+    cams = []
+    for i in range(6):
+        a = 2 * math.pi * i / 6
+        centre = (
+            distance * math.cos(a) * math.cos(elevation),
+            distance * math.sin(a) * math.cos(elevation),
+            distance * math.sin(elevation),
+        )
+        cams.append(
+            Camera.look_at(f"cam{i:02d}", centre, (0.0, 0.0, 0.0), (1280, 1024), NARROW_FOCAL)
+        )
+    top = (0.002, 0.0, distance)  # off the vertical, so that look_at has an up direction
+    cams.append(Camera.look_at("cam06", top, (0.0, 0.0, 0.0), (1280, 1024), NARROW_FOCAL))
+    return CameraRig(cams)
+
+
 #: Preset name -> recipe.
 PRESETS: dict[str, RigPreset] = {
     "paper69": RigPreset(
@@ -195,6 +242,18 @@ PRESETS: dict[str, RigPreset] = {
         "4 cameras, 320x256, f=190 px (FOV 80.2x67.9 deg), one ring of radius 2.4 m at "
         "1.4 m height, 30 Hz (for fast tests)",
         _tiny4,
+    ),
+    "lab4": RigPreset(
+        "4 cameras, 1280x720, f=900 px (FOV 70.8x43.6 deg), a webcam lab rig: an arc of 120 "
+        "degrees of radius 3 m on one side of the stage, heights 1.2 m / 2.0 m, 30 Hz",
+        _lab4,
+    ),
+    "narrow7": RigPreset(
+        "7 cameras, 1280x1024, f=21556 px (FOV 3.4x2.7 deg), 11.8 cm from a subject a few mm "
+        "across at the origin: 6 on a ring 40 degrees above it, 1 above it, 30 Hz (no scene "
+        "is scaled to it)",
+        _narrow7,
+        target=(0.0, 0.0, 0.0),
     ),
 }
 
@@ -228,7 +287,7 @@ def make_rig(name: str) -> CameraRig:
         )
     rig = PRESETS[name].build()
     # Every camera must see the stage centre; a preset that fails this is a bug.
-    proj = rig.project(np.array([[0.0, 0.0, 0.9]]))
+    proj = rig.project(np.array([PRESETS[name].target]))
     if not proj.in_image.all():
         raise ValidationError(f"rig preset {name!r}: some camera does not see the stage centre")
     return rig

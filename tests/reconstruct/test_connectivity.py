@@ -13,9 +13,12 @@ from pointtraj.errors import FileFormatError, ValidationError
 from pointtraj.reconstruct.connectivity import (
     ConnectivityGraph,
     build_connectivity,
+    common_view,
     confirm_connectivity,
     estimate_capture_volume,
+    working_depths,
 )
+from pointtraj.synth.presets import make_rig
 
 
 def test_build_connectivity_angles_and_degrees():
@@ -53,9 +56,22 @@ def test_build_connectivity_shared_view_check():
 
 
 def test_estimate_capture_volume_ring():
-    box = estimate_capture_volume(ring_rig(8, radius=3.0))
-    np.testing.assert_allclose(box.mean(axis=0), [0.0, 0.0, 1.0], atol=1e-9)
-    np.testing.assert_allclose(box[1] - box[0], [3.0, 3.0, 3.0], atol=1e-9)
+    """A ring aimed at its centre: the common view is centred there and reaches about 1.5 times
+    the working distance (the radius) from each camera, and it scales with the rig."""
+    rig = ring_rig(8, radius=3.0)
+    np.testing.assert_allclose(working_depths(rig), 3.0, rtol=1e-9)
+    view = common_view(rig)
+    assert view.min_cameras == 3 and view.samples > 1000
+    np.testing.assert_allclose(view.box.mean(axis=0)[:2], [0.0, 0.0], atol=0.15)
+    size = view.box[1] - view.box[0]
+    assert np.all(size[:2] > 2.5) and np.all(size[:2] < 5.0)  # within the ring and its fields
+    assert np.all(view.box[0] < [0, 0, 1]) and np.all(view.box[1] > [0, 0, 1])  # the target
+    assert 0 < view.volume_m3 < np.prod(size)
+    np.testing.assert_array_equal(estimate_capture_volume(rig), view.box)
+    # The same rig at a thousandth of the size: the same region at a thousandth of the size.
+    small = ring_rig(8, radius=0.003, target=(0.0, 0.0, 0.001), heights=(0.001,))
+    np.testing.assert_allclose(common_view(small).box, view.box / 1000, rtol=1e-6, atol=1e-9)
+    assert "mm" in common_view(small).summary() and " m " in view.summary()
 
 
 def test_estimate_capture_volume_parallel_axes():
@@ -164,3 +180,72 @@ def test_summary_text():
     assert "12 cameras, 36 edges" in text
     assert "degree min 6, mean 6.0, max 6" in text
     assert len(text.splitlines()) == 12 + 4
+
+
+def _wide_volume_rule_pairs(rig: CameraRig) -> int:
+    """The pairs the earlier rule kept: a cube of half the median camera distance around the
+    point nearest the optical axes, and a fixed shared-view cut-off of 0.05."""
+    d = rig.R[:, 2]
+    proj = np.eye(3) - d[:, :, None] * d[:, None, :]
+    center = np.linalg.solve(proj.sum(axis=0), np.einsum("cij,cj->i", proj, rig.C))
+    half = 0.5 * float(np.median(np.linalg.norm(rig.C - center, axis=1)))
+    box = np.stack([center - half, center + half])
+    g = build_connectivity(rig, min_overlap=0.0, volume=box)  # every pair within 90 degrees
+    return int(np.sum(g.overlap >= 0.05))
+
+
+def _room_sized(rig: CameraRig, scale: float, focal: float) -> CameraRig:
+    """The same camera layout ``scale`` times larger, with wide fields of view."""
+    return CameraRig(
+        [Camera.look_at(c.name, scale * c.C, [0.0, 0.0, 0.0], tuple(c.size), focal) for c in rig]
+    )
+
+
+def test_narrow_field_rig_keeps_its_pairs(caplog):
+    """Issue 17's narrow-field rig: 7 cameras with a 3.4 degree field of view, 11.8 cm from a
+    subject a few mm across. The defaults keep at least 80 % of the pairs that the earlier
+    wide-volume rule keeps on the same layout at room size with wide fields of view; that rule
+    on the narrow rig itself keeps almost none (the finding: 1 of 21)."""
+    narrow = make_rig("narrow7")
+    room = _room_sized(narrow, 2.4 / 0.118, 640.0 / np.tan(np.radians(40.0)))  # 80 deg FOV
+    reference = _wide_volume_rule_pairs(room)
+    assert reference >= 15  # of 21; the 3 opposite pairs are 100 degrees apart
+    assert _wide_volume_rule_pairs(narrow) <= 0.2 * reference  # the finding reproduced
+    with caplog.at_level("INFO", logger="pointtraj.reconstruct.connectivity"):
+        g = build_connectivity(narrow)
+    assert g.num_edges >= 0.8 * reference
+    assert "most of the rig is unused" not in caplog.text
+    assert "mm" in common_view(narrow).summary()  # the volume in the rig's scale
+    # The same rig forced into the earlier volume: the relative cut-off still keeps most
+    # pairs (the fixed one kept none), and a warning says the volume is too large.
+    caplog.clear()
+    box = np.array([[-0.059] * 3, [0.059] * 3])  # the +-5.8 cm cube of the finding
+    with caplog.at_level("WARNING", logger="pointtraj.reconstruct.connectivity"):
+        forced = build_connectivity(narrow, volume=box)
+    assert forced.num_edges >= 0.8 * reference
+    assert "share little of the capture volume" in caplog.text and "capture_volume" in caplog.text
+
+
+def test_most_of_the_rig_unused_warns(caplog):
+    rig = ring_rig(8, outward=(0, 1, 2, 3, 4))  # five cameras look away from the volume
+    with caplog.at_level("WARNING", logger="pointtraj.reconstruct.connectivity"):
+        g = build_connectivity(rig)
+    assert g.num_edges <= 3
+    assert "most of the rig is unused" in caplog.text
+    assert "see none of the capture volume" in caplog.text or "shared view" in caplog.text
+
+
+def test_dropped_pairs_are_logged_with_their_reason(caplog):
+    rig = ring_rig(8)
+    with caplog.at_level("WARNING", logger="pointtraj.reconstruct.connectivity"):
+        g = build_connectivity(rig, max_angle_deg=90.0)
+    assert g.num_edges == 16
+    assert "12 of 28 camera pairs not matched" in caplog.text
+    assert "max_angle_deg = 90" in caplog.text and "c0-c3 (135 deg" in caplog.text
+    assert "most of the rig is unused" not in caplog.text
+
+
+def test_presets_edges_unchanged_by_the_relative_cut_off():
+    """The relative cut-off keeps the demo's and paper69's pairs (as the fixed 0.05 did)."""
+    for name, pairs in (("ring8", 16), ("tiny4", 4), ("ring12", 36), ("paper69", 1266)):
+        assert build_connectivity(make_rig(name)).num_edges == pairs, name

@@ -1,0 +1,109 @@
+"""Settings derived from the rig: matching, densification and the capture volume
+(pointtraj.reconstruct.config.ReconstructConfig.for_rig, rig_choices; issue 17)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pointtraj.errors import FileFormatError
+from pointtraj.reconstruct.config import ReconstructConfig, rig_choices
+from pointtraj.reconstruct.densify import DensifyConfig
+from pointtraj.reconstruct.matching import GMS_THRESHOLD, MatchingConfig
+from pointtraj.reconstruct.track import Tracker
+from pointtraj.stages import load_reconstruct_config
+from pointtraj.synth.presets import make_rig
+
+
+@pytest.mark.parametrize(
+    "preset, guided, gms, densify, cover",
+    [
+        ("ring8", False, GMS_THRESHOLD, False, "off"),  # the demo: as before
+        ("tiny4", False, GMS_THRESHOLD, False, "off"),
+        ("ring12", False, GMS_THRESHOLD, False, "off"),
+        ("paper69", True, GMS_THRESHOLD, True, "on"),  # what pipelines/paper69.toml set
+        ("lab4", True, 2.0, True, "off"),  # webcams: what Pose2Sim's pipeline set
+        ("narrow7", True, 2.0, True, "off"),
+    ],
+)
+def test_for_rig_chooses_from_baselines_and_resolution(preset, guided, gms, densify, cover, caplog):
+    rig = make_rig(preset)
+    with caplog.at_level("INFO", logger="pointtraj.reconstruct.config"):
+        cfg = ReconstructConfig().for_rig(rig)
+    assert cfg.matching.guided is guided
+    assert cfg.matching.gms_threshold == gms
+    assert cfg.densify.enabled is densify
+    assert cfg.cover_visible == cover
+    assert "rig-derived settings" in caplog.text and "from the rig" in caplog.text
+    # Resolved once: nothing is left to choose, nothing is logged again.
+    caplog.clear()
+    with caplog.at_level("INFO", logger="pointtraj.reconstruct.config"):
+        assert cfg.for_rig(rig) is cfg
+    assert caplog.text == ""
+
+
+def test_for_rig_keeps_what_is_set(caplog):
+    rig = make_rig("lab4")
+    set_cfg = ReconstructConfig(
+        matching=MatchingConfig(guided=False, gms_threshold=6.0),
+        densify=DensifyConfig(enabled=False),
+    )
+    with caplog.at_level("INFO", logger="pointtraj.reconstruct.config"):
+        cfg = set_cfg.for_rig(rig)
+    assert cfg.matching.guided is False and cfg.matching.gms_threshold == 6.0
+    assert cfg.densify.enabled is False
+    assert "guided off (set)" in caplog.text and "densification off (set)" in caplog.text
+
+
+def test_rig_choices_figures():
+    c = rig_choices(make_rig("paper69"))
+    assert c.megapixels == pytest.approx(1.31072)
+    assert c.nearest_deg == pytest.approx(10.3, abs=0.1)
+    assert "1.31 MP images (large" in c.reason
+    # A smaller feature budget (for speed) does not switch the matching mode.
+    small = ReconstructConfig(matching=MatchingConfig(num_features=400))
+    assert small.for_rig(make_rig("ring8")).matching.guided is False
+
+
+def test_capture_volume_and_overlap_keys(tmp_path, caplog):
+    path = tmp_path / "r.toml"
+    path.write_text(
+        "[reconstruct]\ncapture_volume = [[-0.01, -0.01, -0.01], [0.01, 0.01, 0.01]]\n"
+        "min_pair_overlap = 0.5\n",
+        encoding="utf-8",
+    )
+    cfg = load_reconstruct_config(path)
+    assert cfg.capture_volume == ((-0.01, -0.01, -0.01), (0.01, 0.01, 0.01))
+    assert cfg.min_pair_overlap == 0.5
+    # The tracker measures the pairs' shared view in that volume: the narrow rig sees it.
+    with caplog.at_level("INFO", logger="pointtraj.reconstruct.connectivity"):
+        tracker = Tracker(make_rig("narrow7"), cfg)
+    assert len(tracker.edges) == 18 and "(set)" in caplog.text
+    # A volume that no camera sees connects nothing, and says so.
+    far = ReconstructConfig(capture_volume=((5.0, 5.0, 5.0), (6.0, 6.0, 6.0)))
+    with caplog.at_level("WARNING"):
+        assert len(Tracker(make_rig("narrow7"), far).edges) == 0
+    assert "see none of the capture volume" in caplog.text
+    path.write_text("[reconstruct]\ncapture_volume = [[1, 0, 0], [0, 1, 1]]\n", encoding="utf-8")
+    with pytest.raises(FileFormatError, match="capture_volume"):
+        load_reconstruct_config(path)
+    path.write_text("[reconstruct]\nmin_pair_overlap = 1.5\n", encoding="utf-8")
+    with pytest.raises(FileFormatError, match="min_pair_overlap"):
+        load_reconstruct_config(path)
+
+
+def test_new_presets():
+    lab = make_rig("lab4")
+    assert len(lab) == 4 and all(tuple(c.size) == (1280, 720) for c in lab)
+    box = np.array([[x, y, z] for x in (-0.3, 0.3) for y in (-0.3, 0.3) for z in (0.05, 1.75)])
+    assert lab.project(box).in_image.all()  # the figure's volume
+    narrow = make_rig("narrow7")
+    assert len(narrow) == 7
+    dist = np.linalg.norm(narrow.C, axis=1)
+    np.testing.assert_allclose(dist, 0.118, rtol=1e-3)
+    width = narrow.sizes[:, 0] / narrow.K[:, 0, 0] * dist  # seen across at the subject, metres
+    assert np.all((width > 0.006) & (width < 0.008))
+    subject = np.array(
+        [[x, y, z] for x in (-0.0015, 0.0015) for y in (-0.0015, 0.0015) for z in (-0.0015, 0.0015)]
+    )
+    assert narrow.project(subject).in_image.all()  # a 3 mm cube at the origin
