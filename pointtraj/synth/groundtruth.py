@@ -315,6 +315,25 @@ def _read_png(path: Path, dtype: type) -> np.ndarray:
     return img
 
 
+def _save_index_map(path: Path, values, name: str, what: str) -> Path:
+    """Write an (H, W) index map (-1 = none) as a uint8 PNG, 255 standing for -1."""
+    idx = np.asarray(values)
+    if idx.ndim != 2:
+        raise ValidationError(f"{name}: expected shape (H, W), got {idx.shape}")
+    if idx.size and idx.max() >= _BACKGROUND_PNG:
+        raise ValidationError(f"{name}: {what} must be below 255 to fit the PNG format")
+    _write_png(path, np.where(idx < 0, _BACKGROUND_PNG, idx).astype(np.uint8))
+    return path
+
+
+def _load_index_map(path: Path) -> np.ndarray:
+    """(H, W) int16 index map of :func:`_save_index_map`'s PNG, -1 where it has 255."""
+    png = _read_png(path, np.uint8)
+    out = png.astype(np.int16)
+    out[png == _BACKGROUND_PNG] = -1
+    return out
+
+
 def save_label_map(capture_dir: str | os.PathLike, camera: str, frame: int, label) -> Path:
     """Write ``gt/labels/<camera>/<frame:06d>.png`` (uint8, 255 = background).
 
@@ -323,15 +342,9 @@ def save_label_map(capture_dir: str | os.PathLike, camera: str, frame: int, labe
     label : (H, W) int ndarray
         Class index, -1 background; indices must be below 255.
     """
-    lab = np.asarray(label)
-    if lab.ndim != 2:
-        raise ValidationError(f"label: expected shape (H, W), got {lab.shape}")
-    if lab.size and lab.max() >= _BACKGROUND_PNG:
-        raise ValidationError("label: class indices must be below 255 to fit the PNG format")
-    png = np.where(lab < 0, _BACKGROUND_PNG, lab).astype(np.uint8)
-    path = _map_path(capture_dir, "labels", camera, frame)
-    _write_png(path, png)
-    return path
+    return _save_index_map(
+        label_map_path(capture_dir, camera, frame), label, "label", "class indices"
+    )
 
 
 def save_instance_map(capture_dir: str | os.PathLike, camera: str, frame: int, instance) -> Path:
@@ -342,15 +355,9 @@ def save_instance_map(capture_dir: str | os.PathLike, camera: str, frame: int, i
     instance : (H, W) int ndarray
         Instance id of the geometry seen, -1 where none; ids must be below 255.
     """
-    ins = np.asarray(instance)
-    if ins.ndim != 2:
-        raise ValidationError(f"instance: expected shape (H, W), got {ins.shape}")
-    if ins.size and ins.max() >= _BACKGROUND_PNG:
-        raise ValidationError("instance: ids must be below 255 to fit the PNG format")
-    png = np.where(ins < 0, _BACKGROUND_PNG, ins).astype(np.uint8)
-    path = instance_map_path(capture_dir, camera, frame)
-    _write_png(path, png)
-    return path
+    return _save_index_map(
+        instance_map_path(capture_dir, camera, frame), instance, "instance", "ids"
+    )
 
 
 def instance_map_path(capture_dir: str | os.PathLike, camera: str, frame: int) -> Path:
@@ -371,10 +378,7 @@ def load_instance_map(capture_dir: str | os.PathLike, camera: str, frame: int) -
     FileFormatError
         If the map is missing or not a uint8 PNG.
     """
-    png = _read_png(instance_map_path(capture_dir, camera, frame), np.uint8)
-    out = png.astype(np.int16)
-    out[png == _BACKGROUND_PNG] = -1
-    return out
+    return _load_index_map(instance_map_path(capture_dir, camera, frame))
 
 
 def save_depth_map(capture_dir: str | os.PathLike, camera: str, frame: int, depth) -> Path:
@@ -419,10 +423,7 @@ def load_label_map(capture_dir: str | os.PathLike, camera: str, frame: int) -> n
     FileFormatError
         If the map is missing or not a uint8 PNG.
     """
-    png = _read_png(label_map_path(capture_dir, camera, frame), np.uint8)
-    out = png.astype(np.int16)
-    out[png == _BACKGROUND_PNG] = -1
-    return out
+    return _load_index_map(label_map_path(capture_dir, camera, frame))
 
 
 def load_depth_map(capture_dir: str | os.PathLike, camera: str, frame: int) -> np.ndarray:
