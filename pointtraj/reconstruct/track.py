@@ -483,7 +483,9 @@ class Tracker:
         if new_tri is not None:
             parts.append((new_tri, new_obs, keep_new))
             if cfg.densify.enabled:
-                moved = _image_motion(obs, st.pixels) > cfg.densify.seed_motion_px  # (N,)
+                moved = None  # (N,) tracked points that seed it, with seeds = "moving"
+                if cfg.densify.seeds == "moving":
+                    moved = _image_motion(obs, st.pixels) > cfg.densify.seed_motion_px
                 parts.append(self._densify(grey, prepared, parts, cover, moved))
         xyz, vis, err, pix = _union(parts)
         n_old = int(keep_old.sum())
@@ -701,7 +703,7 @@ class Tracker:
         prepared: Sequence[np.ndarray],
         parts: list[tuple[Triangulation, np.ndarray, np.ndarray]],
         cover: np.ndarray,
-        moved: np.ndarray,
+        moved: np.ndarray | None,
     ) -> tuple[Triangulation, np.ndarray, np.ndarray]:
         """Patch densification (:func:`~.densify.densify`) into pixels that no point of
         ``parts`` takes, grown from the seeds that ``densify.seeds`` names: the frame's new
