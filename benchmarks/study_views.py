@@ -117,6 +117,18 @@ def table(m: dict) -> str:
             "actor point-frames",
         ),
         (
+            ">=3 views true, of actor point-frames",
+            _pct(m["gt.views.three_view_truth"]),
+            m["gt.views.three_view_truth.support"],
+            "actor point-frames",
+        ),
+        (
+            "GT surface: >=3 cameras | >=2 (the rig allows)",
+            _pct(m["gt.views.surface_three_view"]),
+            m["gt.views.surface_three_view.support"],
+            "sample-frames",
+        ),
+        (
             "exactly 2 views observed",
             _pct(m["gt.views.two_view_share"]),
             m["gt.views.two_view_share.support"],

@@ -88,6 +88,16 @@ class SynthConfig:
     points_per_part : int
         Ground-truth surface points per labelled part.
     image_format : {"jpg", "png"}
+    rig : str
+        A rig file (any format ``pointtraj rig show`` reads) to render with instead of the
+        preset: a synthetic twin of a real rig (:func:`pointtraj.synth.presets.twin_rig`), with
+        the scene's subject where its optical axes meet, or at ``at``. Empty: the preset.
+    at : (3,) tuple of float, optional
+        With ``rig``: the subject's centre in the rig's coordinates (metres).
+    up : str
+        With ``rig``: the rig's up direction (``"auto"``, ``"+z"``, ``"-y"``, ...).
+    fps : float, optional
+        Frame rate (default: the preset's; 30 with ``rig``).
     """
 
     preset: str = "ring8"
@@ -96,6 +106,10 @@ class SynthConfig:
     seed: int = 0
     points_per_part: int = 300
     image_format: str = "jpg"
+    rig: str = ""
+    at: tuple[float, float, float] | None = None
+    up: str = "auto"
+    fps: float | None = None
 
     def __post_init__(self) -> None:
         from .synth.presets import PRESETS
@@ -113,6 +127,12 @@ class SynthConfig:
             raise ValidationError("synth.frames and synth.points_per_part must be positive")
         if self.image_format not in ("jpg", "png"):
             raise ValidationError(f"synth.image_format: 'jpg' or 'png', got {self.image_format!r}")
+        if self.at is not None and not self.rig:
+            raise ValidationError(
+                "synth.at places the subject in a rig file's frame; give synth.rig"
+            )
+        if self.fps is not None and not (self.fps > 0):
+            raise ValidationError(f"synth.fps must be positive, got {self.fps!r}")
 
 
 @dataclass(frozen=True)
@@ -194,9 +214,20 @@ def synthesize(
         done[0] += 1
         _report(progress, "synth", done[0], config.frames)
 
+    rig = None
+    preset = config.preset
+    if config.rig:
+        from .rigio import load_rig
+        from .synth.presets import twin_rig
+
+        rig, how = twin_rig(load_rig(config.rig), at=config.at, up=config.up)
+        preset = f"twin of {Path(config.rig).name}"
+        logger.info("synthetic twin of %s: %s", config.rig, how)
     return render_capture(
         capture,
-        preset=config.preset,
+        rig=rig,
+        fps=config.fps,
+        preset=preset,
         scene=config.scene,
         frames=config.frames,
         seed=config.seed,

@@ -512,3 +512,85 @@ def test_two_bone_ik_keeps_bone_lengths_and_reaches():
         else:  # out of reach: as close as possible along the same direction
             direction = (wrist - shoulder) / np.linalg.norm(wrist - shoulder)
             assert np.allclose(direction, (target - shoulder) / reach, atol=1e-9)
+
+
+def _moved(rig, R, t):
+    """The same cameras in a world frame ``X' = R X + t`` (a rig file from another tool)."""
+    from pointtraj.camera import Camera, CameraRig
+
+    return CameraRig([Camera(c.name, c.K, c.R @ R.T, R @ c.C + t, c.size, c.dist) for c in rig])
+
+
+def test_twin_of_a_moved_rig_sees_the_stage_as_the_preset_does():
+    from scipy.spatial.transform import Rotation
+
+    from pointtraj.synth.presets import STAGE_CENTRE, axes_meeting_point, twin_rig
+
+    rig = make_rig("ring8")  # aimed at (0, 0, 0.85)
+    R = Rotation.from_rotvec([0.9, -0.4, 0.3]).as_matrix()  # y-up-ish, shifted: another tool
+    t = np.array([3.0, -1.0, 7.0])
+    moved = _moved(rig, R, t)
+    aim = R @ np.array([0.0, 0.0, 0.85]) + t
+    assert np.allclose(axes_meeting_point(moved), aim, atol=1e-9)
+    twin, how = twin_rig(moved, up=R @ np.array([0.0, 0.0, 1.0]))
+    assert "where the optical axes meet" in how
+    # A rigid move to the stage, up to a turn about the vertical: the points on the vertical
+    # through the stage centre project to the same pixels as in the preset.
+    stage = np.array(STAGE_CENTRE)
+    line = stage + np.outer([-0.8, -0.3, 0.0, 0.5], [0.0, 0.0, 1.0])
+    line_preset = line + np.array([0.0, 0.0, 0.85 - 0.9])
+    assert np.allclose(twin.project(line).pixels, rig.project(line_preset).pixels, atol=1e-6)
+    assert np.allclose(twin.C[:, 2], rig.C[:, 2] + 0.05, atol=1e-9)  # heights kept
+    # The subject placed explicitly, and the up axis detected from the ring.
+    twin2, how2 = twin_rig(moved, at=aim)
+    assert "as given" in how2 and np.allclose(twin2.C[:, 2], twin.C[:, 2], atol=1e-6)
+
+
+def test_twin_rejects_bad_placements():
+    from pointtraj.synth.presets import axes_meeting_point, twin_rig
+
+    rig = make_rig("tiny4")
+    with pytest.raises(ValidationError, match="at must be 3 finite numbers"):
+        twin_rig(rig, at=(1.0, 2.0))
+    with pytest.raises(ValidationError, match="scale must be a positive"):
+        twin_rig(rig, scale=0.0)
+    with pytest.raises(ValidationError, match="up"):
+        twin_rig(rig, up="sideways")
+    parallel = _moved(make_rig("tiny4"), np.eye(3), np.zeros(3))
+    from pointtraj.camera import Camera, CameraRig
+
+    same = CameraRig(
+        [Camera(f"c{i}", c.K, parallel[0].R, c.C, c.size) for i, c in enumerate(parallel)]
+    )
+    with pytest.raises(ValidationError, match="optical axes do not meet"):
+        axes_meeting_point(same)
+
+
+def test_cli_renders_a_twin_of_a_rig_file(tmp_path):
+    from pointtraj.cli import main
+    from pointtraj.rigio import load_rig, save_rig
+    from pointtraj.synth.presets import twin_rig
+
+    rig = make_rig("tiny4")
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # z-up to y-up
+    save_rig(_moved(rig, R, np.array([0.5, 0.2, -2.0])), tmp_path / "rig.toml")
+    out = tmp_path / "twin"
+    args = ["synth", "--rig", str(tmp_path / "rig.toml"), "--up", "+y", "--frames", "1"]
+    args += ["--out", str(out), "--points-per-part", "20", "--fps", "50", "--workers", "1"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    from pointtraj.session import Capture
+
+    cap = Capture.open(out)
+    expected, _ = twin_rig(load_rig(tmp_path / "rig.toml"), up="+y")
+    assert (
+        cap.fps == 50 and np.allclose(cap.rig.C, expected.C) and np.allclose(cap.rig.R, expected.R)
+    )
+    gt = load_ground_truth(out)
+    assert gt.visible[:, 0].any(axis=0).all()  # every camera sees the subject
+    # Another rig in the same folder is another capture.
+    save_rig(rig, tmp_path / "other.toml")
+    res = CliRunner().invoke(main, [*args[:2], str(tmp_path / "other.toml"), *args[3:]])
+    assert res.exit_code == 1 and "holds a different synthetic capture" in res.output
+    res = CliRunner().invoke(main, ["synth", "--at", "0,0,1", "--out", str(tmp_path / "x")])
+    assert res.exit_code != 0 and "give --rig" in res.output

@@ -56,6 +56,24 @@ def _summary_lines(summary) -> list[str]:
     show_default=True,
     help="Frame image format.",
 )
+@click.option(
+    "--rig",
+    "rig_file",
+    type=click.Path(exists=True, path_type=Path),
+    help="Render with the cameras of this rig file instead of a preset (a synthetic twin of "
+    "a real rig: the subject where the optical axes meet, or at --at).",
+)
+@click.option(
+    "--at",
+    help="With --rig: the subject's centre in the rig's coordinates, metres (X,Y,Z).",
+)
+@click.option(
+    "--up",
+    default="auto",
+    show_default=True,
+    help="With --rig: the rig's up axis (auto, +z, -y, ...).",
+)
+@click.option("--fps", type=float, help="Frame rate [default: the preset's; 30 with --rig].")
 @click.option("--list", "list_", is_flag=True, help="List presets and scenes, then exit.")
 @executor_options
 def synth(
@@ -66,6 +84,10 @@ def synth(
     seed: int,
     points_per_part: int,
     image_format: str,
+    rig_file: Path | None,
+    at: str | None,
+    up: str,
+    fps: float | None,
     list_: bool,
     workers: int | None,
     scheduler: str | None,
@@ -100,6 +122,16 @@ def synth(
         raise click.BadParameter(
             f"must be at least 1, got {points_per_part}", param_hint="--points-per-part"
         )
+    position = None
+    if at is not None:
+        try:
+            position = tuple(float(v) for v in at.split(","))
+        except ValueError:
+            position = ()
+        if len(position) != 3:
+            raise click.BadParameter(f"expected X,Y,Z, got {at!r}", param_hint="--at")
+        if rig_file is None:
+            raise click.UsageError("--at places the subject in a rig file's frame; give --rig")
     config = SynthConfig(
         preset=preset,
         scene=scene,
@@ -107,8 +139,12 @@ def synth(
         seed=seed,
         points_per_part=points_per_part,
         image_format=image_format,
+        rig=str(rig_file) if rig_file is not None else "",
+        at=position,
+        up=up,
+        fps=fps,
     )
-    label = f"rendering {scene} ({preset})"
+    label = f"rendering {scene} ({preset if rig_file is None else 'twin of ' + rig_file.name})"
     with open_cli_executor(executor_config(workers, scheduler)) as ex, progress_bars() as bars:
         summary = synthesize(
             out, config, lambda _, done, total: bars(label, done, total), executor=ex

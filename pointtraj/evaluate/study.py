@@ -406,6 +406,8 @@ VIEW_KEYS = (
     "observed_per_point",
     "per_point",
     "three_view_share",
+    "three_view_truth",
+    "surface_three_view",
     "two_view_share",
     "trajectory_length.median",
     "trajectory_length",
@@ -454,6 +456,12 @@ def _views_section(capture: Path, traj, metrics: dict, progress) -> Section:
         f"| observed in >= 3 cameras, of those truly visible in >= 3 | "
         f"{_fmt(100 * m['gt.views.three_view_share'], 1)} % | "
         f"{m['gt.views.three_view_share.support']} point-frames |\n"
+        f"| truly visible in >= 3 cameras, of the actor point-frames | "
+        f"{_fmt(100 * m['gt.views.three_view_truth'], 1)} % | "
+        f"{m['gt.views.three_view_truth.support']} point-frames |\n"
+        f"| what the rig allows: ground-truth surface in >= 3 cameras, of that in >= 2 | "
+        f"{_fmt(100 * m['gt.views.surface_three_view'], 1)} % | "
+        f"{m['gt.views.surface_three_view.support']} sample-frames |\n"
         f"| observed in exactly 2 cameras, of all point-frames | "
         f"{_fmt(100 * m['gt.views.two_view_share'], 1)} % | "
         f"{m['gt.views.two_view_share.support']} point-frames |\n"

@@ -245,6 +245,9 @@ class ViewAudit:
         Live point-frames observed in exactly 2 cameras.
     three_view_truth, three_view_hit : int
         Actor point-frames truly visible in >= 3 cameras; those of them observed in >= 3.
+    surface_two, surface_three : int
+        Ground-truth sample-frames truly visible in >= 2 cameras; those of them in >= 3: what
+        the rig's geometry allows, whatever the reconstruction does.
     actor_lengths : (K,) int64 ndarray
         Audited length of each trajectory on the actors.
     visible_runs : (R,) int64 ndarray
@@ -274,6 +277,8 @@ class ViewAudit:
     two_view_point_frames: int = 0
     three_view_truth: int = 0
     three_view_hit: int = 0
+    surface_two: int = 0
+    surface_three: int = 0
     actor_lengths: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     visible_runs: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     flag_runs: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -304,6 +309,11 @@ class ViewAudit:
         return _ratio(self.three_view_hit, self.three_view_truth)
 
     @property
+    def surface_three_view_share(self) -> float:
+        """Share truly visible in >= 3 cameras of the surface samples visible in >= 2."""
+        return _ratio(self.surface_three, self.surface_two)
+
+    @property
     def two_view_share(self) -> float:
         """Share of live point-frames observed in exactly 2 cameras."""
         return _ratio(self.two_view_point_frames, self.live_point_frames)
@@ -327,6 +337,10 @@ class ViewAudit:
             "gt.views.actor_share.support": self.live_point_frames,
             "gt.views.three_view_share": self.three_view_share,
             "gt.views.three_view_share.support": self.three_view_truth,
+            "gt.views.three_view_truth": _ratio(self.three_view_truth, self.actor_point_frames),
+            "gt.views.three_view_truth.support": self.actor_point_frames,
+            "gt.views.surface_three_view": self.surface_three_view_share,
+            "gt.views.surface_three_view.support": self.surface_two,
             "gt.views.two_view_share": self.two_view_share,
             "gt.views.two_view_share.support": self.live_point_frames,
             "gt.views.trajectory_length.median": _median(self.actor_lengths),
@@ -481,7 +495,11 @@ def _update_runs(runs: _Runs, flag_runs: _Runs, truth: FrameTruth) -> None:
 
 
 def _update_flags(audit: ViewAudit, truth: FrameTruth) -> None:
-    """Count the agreement of the stored flags with true visibility over in-image views."""
+    """Count the agreement of the stored flags with true visibility over in-image views, and
+    the samples truly visible in >= 2 and >= 3 cameras."""
+    n_true = truth.visible.sum(axis=1)
+    audit.surface_two += int((n_true >= 2).sum())
+    audit.surface_three += int((n_true >= 3).sum())
     ii = truth.in_image
     audit.flag_views += int(ii.sum())
     audit.flag_agree += int((ii & (truth.flags == truth.visible)).sum())

@@ -43,6 +43,7 @@ Camera names are ``cam00``, ``cam01``, ... in ring order (the lower ring first f
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -52,7 +53,21 @@ import numpy as np
 from ..camera import Camera, CameraRig
 from ..errors import ValidationError
 
-__all__ = ["PRESETS", "RigPreset", "make_rig", "ring_cameras", "field_of_view"]
+__all__ = [
+    "PRESETS",
+    "RigPreset",
+    "make_rig",
+    "ring_cameras",
+    "field_of_view",
+    "twin_rig",
+    "axes_meeting_point",
+]
+
+logger = logging.getLogger(__name__)
+
+
+#: The synthetic scenes' centre (metres): the figure stands on ``z = 0`` around it.
+STAGE_CENTRE: tuple[float, float, float] = (0.0, 0.0, 0.9)
 
 
 @dataclass(frozen=True)
@@ -291,3 +306,121 @@ def make_rig(name: str) -> CameraRig:
     if not proj.in_image.all():
         raise ValidationError(f"rig preset {name!r}: some camera does not see the stage centre")
     return rig
+
+
+def axes_meeting_point(rig: CameraRig) -> np.ndarray:
+    """The point nearest to every camera's optical axis, in the least-squares sense.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras (at least 2).
+
+    Returns
+    -------
+    (3,) float ndarray
+        World coordinates.
+
+    Raises
+    ------
+    ValidationError
+        If the axes are (nearly) parallel, so that they meet nowhere.
+
+    Examples
+    --------
+    >>> np.round(axes_meeting_point(make_rig("ring8")), 6).tolist()
+    [0.0, 0.0, 0.85]
+    """
+    d = np.asarray(rig.R, np.float64)[:, 2]  # (C, 3) optical axes
+    proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]  # (C, 3, 3) off-axis projectors
+    A = proj.sum(axis=0)
+    if len(rig) < 2 or np.linalg.cond(A) > 1e6:
+        raise ValidationError(
+            "the cameras' optical axes do not meet (fewer than 2 cameras, or all parallel); "
+            "give the subject's position"
+        )
+    return np.linalg.solve(A, np.einsum("cij,cj->i", proj, np.asarray(rig.C, np.float64)))
+
+
+def twin_rig(
+    rig: CameraRig,
+    *,
+    at: object = None,
+    up: object = "auto",
+    scale: float = 1.0,
+) -> tuple[CameraRig, str]:
+    """A user's rig moved into the synthetic scenes' frame: a synthetic twin of a real capture.
+
+    The scenes stand on the floor ``z = 0`` with their centre at :data:`STAGE_CENTRE` (0.9 m up,
+    the figure's waist). The rig is moved rigidly so that the point ``at`` (the subject's centre
+    in the rig's coordinates; by default where the cameras' optical axes meet,
+    :func:`axes_meeting_point`) lands on the stage centre and the rig's up direction
+    (:func:`pointtraj.geometry.resolve_up`) becomes +z; its horizontal heading is kept.
+    Intrinsics, distortion and image sizes are unchanged, so the twin's images show what the
+    real cameras would see of the synthetic subject.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        The user's C cameras.
+    at : (3,) array-like, optional
+        The subject's centre in the rig's world coordinates (its units).
+    up : str or (3,) array-like
+        The rig's up direction (:func:`pointtraj.geometry.parse_up`); ``"auto"`` detects it.
+    scale : float
+        Metres per unit of the rig's coordinates (1 for a rig in metres, 0.001 in mm).
+
+    Returns
+    -------
+    twin : CameraRig
+        The cameras in the scene frame (metres).
+    how : str
+        One line for the log: where the subject was put and how up was found.
+
+    Raises
+    ------
+    ValidationError
+        On a bad ``at``, ``up`` or ``scale``, or a rig whose axes do not meet when ``at`` is
+        not given.
+    """
+    from ..geometry import resolve_up
+
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValidationError(f"scale must be a positive number of metres per unit, got {scale!r}")
+    if at is None:
+        centre = axes_meeting_point(rig)
+        where = "where the optical axes meet"
+    else:
+        centre = np.asarray(at, np.float64).reshape(-1)
+        if centre.shape != (3,) or not np.isfinite(centre).all():
+            raise ValidationError(f"at must be 3 finite numbers (x, y, z), got {at!r}")
+        where = "as given"
+    up_vec, up_how = resolve_up(up, rig)
+    z = up_vec / np.linalg.norm(up_vec)
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z  # the rig's x axis, made horizontal
+    if np.linalg.norm(x) < 1e-6:
+        x = np.array([0.0, 1.0, 0.0]) - z[1] * z
+    x /= np.linalg.norm(x)
+    Rw = np.stack([x, np.cross(z, x), z])  # (3, 3) rig frame to scene frame
+    stage = np.asarray(STAGE_CENTRE)
+    cams = [
+        Camera(
+            cam.name, cam.K, cam.R @ Rw.T, Rw @ (cam.C - centre) * scale + stage, cam.size, cam.dist
+        )
+        for cam in rig
+    ]
+    twin = CameraRig(cams)
+    unseen = [cam.name for cam, ok in zip(twin, twin.project(stage[None]).in_image[:, 0]) if not ok]
+    if unseen:
+        logger.warning(
+            "synthetic twin: %d of %d cameras do not see the subject's centre (%s); they will "
+            "see little of the scene",
+            len(unseen),
+            len(twin),
+            ", ".join(unseen),
+        )
+    how = (
+        f"subject centre {np.round(centre, 3).tolist()} ({where}) on the stage centre, "
+        f"up {np.round(z, 3).tolist()} ({up_how}), {scale:g} m per unit"
+    )
+    return twin, how

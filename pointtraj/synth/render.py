@@ -482,6 +482,8 @@ def render_capture(
     settings: RenderSettings | None = None,
     on_frame: Callable[[int, bool], None] | None = None,
     executor: Executor | None = None,
+    rig: CameraRig | None = None,
+    fps: float | None = None,
 ) -> CaptureSummary:
     """Render a synthetic capture folder with ground truth, streaming frame by frame.
 
@@ -512,6 +514,12 @@ def render_capture(
         Where the frames are rendered and written, one task a frame (default: here, with a
         writer thread). Every frame's noise is seeded by the frame and the camera, so the files
         are the same on any executor; on a cluster ``out`` must be a path the workers share.
+    rig : CameraRig, optional
+        Cameras to render with instead of the preset's, in the scenes' frame (a synthetic twin
+        of a real rig: :func:`pointtraj.synth.presets.twin_rig`); ``preset`` then only names
+        them in ``gt/synth.toml``.
+    fps : float, optional
+        Frame rate (default: the preset's, or 30 with ``rig``).
 
     Returns
     -------
@@ -536,9 +544,13 @@ def render_capture(
         raise ValidationError(f"points_per_part must be positive, got {points_per_part}")
     frames = int(frames)
     start = time.perf_counter()
-    rig = make_rig(preset)
+    twin = rig is not None
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise ValidationError(f"fps must be a positive number, got {fps!r}")
+    if not twin:
+        rig = make_rig(preset)
     sc = make_scene(scene, seed)
-    fps = PRESETS[preset].fps
+    fps = float(fps) if fps is not None else (30.0 if twin else PRESETS[preset].fps)
     out = Path(out)
     params = {
         "preset": preset,
@@ -547,6 +559,8 @@ def render_capture(
         "points_per_part": int(points_per_part),
         "image_format": image_format,
     }
+    if twin:  # the same capture only with the same cameras
+        params["rig_digest"] = _rig_digest(rig)
     if out.exists() and not out.is_dir():
         raise ValidationError(f"{out} is a file; the output must be a folder")
     marker = out / "gt" / "synth.toml"
@@ -604,7 +618,9 @@ def render_capture(
     )
     rendered = skipped = 0
     if executor is not None and not executor.local:
-        job = _FrameJob(str(out), preset, scene, int(seed), int(points_per_part), image_format)
+        job = _FrameJob(
+            str(out), preset, scene, int(seed), int(points_per_part), image_format, fps, twin
+        )
         timings = RenderTimings()
         timings.extra.update(write=0.0, ground_truth=0.0)
         todo = []
@@ -738,19 +754,34 @@ class _FrameJob:
     seed: int
     points_per_part: int
     image_format: str
+    fps: float
+    twin: bool  # cameras from the capture's rig.toml, not the preset
+
+
+def _rig_digest(rig: CameraRig) -> str:
+    """A short digest of a rig's cameras (names, sizes, intrinsics, poses, distortion)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for cam in rig:
+        h.update(cam.name.encode())
+        for a in (cam.size, cam.K, cam.R, cam.C, cam.dist):
+            h.update(np.round(np.asarray(a, np.float64), 9).tobytes())
+    return h.hexdigest()[:16]
 
 
 def _frame_tools(job: _FrameJob, settings: RenderSettings | None) -> tuple[Any, ...]:
     """(rig, fps, ground-truth points, renderer, writable capture), made once per worker."""
+    from ..rigio import load_rig
     from ..session import Capture
     from . import groundtruth as gtio
-    from .presets import PRESETS, make_rig
+    from .presets import make_rig
     from .scenes import make_scene
 
     def make() -> tuple[Any, ...]:
-        rig = make_rig(job.preset)
+        rig = load_rig(Path(job.out) / "rig.toml") if job.twin else make_rig(job.preset)
         sc = make_scene(job.scene, job.seed)
-        fps = PRESETS[job.preset].fps
+        fps = job.fps
         points = gtio.sample_ground_truth_points(sc, job.points_per_part, job.seed)
         renderer = Renderer(sc, rig, seed=job.seed, settings=settings)
         cap = Capture(Path(job.out), rig, None, 0, fps, True, job.image_format)

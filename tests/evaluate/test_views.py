@@ -59,7 +59,20 @@ def test_the_ground_truth_store_sees_what_the_ground_truth_sees(capture):
         int((flags.sum(axis=1) >= 2).sum())
     )
     assert np.median(audit.errors["2"]) < 0.003
+    # What the rig allows: the samples' own true views, counted over every sample-frame.
+    n_true = np.concatenate(
+        [frame_truth(cap, Capture.open(cap).rig, t).visible.sum(axis=1) for t in range(4)]
+    )
+    assert audit.surface_two == int((n_true >= 2).sum()) > audit.surface_three > 0
+    assert audit.surface_three_view_share == pytest.approx(
+        (n_true >= 3).sum() / (n_true >= 2).sum()
+    )
+    assert audit.three_view_truth == int((true.sum(axis=1) >= 3).sum())
     m = audit.to_metrics()
+    assert m["gt.views.surface_three_view.support"] == audit.surface_two
+    assert m["gt.views.three_view_truth"] == pytest.approx(
+        audit.three_view_truth / audit.actor_point_frames
+    )
     assert m["gt.views.recall"] == audit.recall
     assert m["gt.views.recall.support"] == audit.true_views
     assert m["gt.views.two_view_share.support"] == traj.num_point_frames
