@@ -564,6 +564,21 @@ def test_legend_avoids_the_subject_on_a_portrait_image():
         legend_origin((w, h), names, "middle")
 
 
+def test_portrait_legend_is_sized_like_the_landscape_one():
+    """Regression: the font followed the image height, so a 1080x1920 portrait video's legend
+    of the 14 body parts took a third of its width (Pose2Sim's cam01) and touched a raised hand.
+    It follows the shorter side."""
+    names = [f"left_upper_arm_{i}" for i in range(14)]
+    cols = np.tile(RED, (14, 1))
+    drawn = {}
+    for size in ((1920, 1080), (1080, 1920)):
+        out = draw_legend(np.zeros((size[1], size[0], 3), np.uint8), names, cols)
+        cols_used = np.flatnonzero(np.any(out > 0, axis=(0, 2)))
+        drawn[size] = cols_used.max() - cols_used.min() + 1
+    assert drawn[(1080, 1920)] == drawn[(1920, 1080)]
+    assert drawn[(1080, 1920)] < 1080 / 4
+
+
 def test_overlay_legend_does_not_cover_the_points(tiny_work):
     from pointtraj.rigio.toml import save_rig_toml
 

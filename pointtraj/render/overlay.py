@@ -169,8 +169,10 @@ def _text_metrics(scale: float) -> tuple[int, int, int, int]:
     return thick, th, int(round(th * 1.9)), max(4, th // 2)
 
 
-def _default_scale(height: int) -> float:
-    return max(0.4, height / 1700)
+def _default_scale(height: int, width: int) -> float:
+    """Font scale from the image's shorter side: 0.6 at 1024, at least 0.4 (a portrait video
+    gets the text size of the same video in landscape, not one that fills its width)."""
+    return max(0.4, min(height, width) / 1700)
 
 
 def _lighten(image: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> None:
@@ -231,7 +233,7 @@ def legend_origin(
     radius : float
         Radius of the points as drawn, pixels: a point this near the box counts as covered.
     scale : float, optional
-        Font scale (default from the image height, as :func:`draw_legend`).
+        Font scale (default from the image's shorter side, as :func:`draw_legend`).
 
     Returns
     -------
@@ -249,7 +251,7 @@ def legend_origin(
             f"legend corner must be 'auto' or one of {', '.join(LEGEND_CORNERS)}, got {corner!r}"
         )
     w, h = int(size[0]), int(size[1])
-    scale = _default_scale(h) if scale is None else scale
+    scale = _default_scale(h, w) if scale is None else scale
     names, _ = _fit_legend(list(names) or [""], np.zeros((0, 3), np.uint8), h, _MARGIN, scale)
     bw, bh = _legend_box(names, scale)
     origins = {
@@ -303,7 +305,8 @@ def draw_legend(
         Top-left corner (x, y) of the box (:func:`legend_origin` chooses a corner that keeps
         the subject visible).
     scale : float, optional
-        OpenCV font scale (default from the image height: 0.6 at 1024 rows, at least 0.4).
+        OpenCV font scale (default from the image's shorter side: 0.6 at 1024 pixels, at least
+        0.4).
 
     Returns
     -------
@@ -317,7 +320,7 @@ def draw_legend(
     if not names:
         return out
     h, w = out.shape[:2]
-    scale = _default_scale(h) if scale is None else scale
+    scale = _default_scale(h, w) if scale is None else scale
     thick, th, pitch, pad = _text_metrics(scale)
     x0, y0 = origin
     names, colors = _fit_legend(names, colors, h, min(y0, _MARGIN), scale)
@@ -364,7 +367,7 @@ def draw_caption(image: np.ndarray, text: str, *, scale: float | None = None) ->
         Not modified.
     text : str
     scale : float, optional
-        OpenCV font scale (default from the image height).
+        OpenCV font scale (default from the image's shorter side).
 
     Returns
     -------
@@ -374,7 +377,7 @@ def draw_caption(image: np.ndarray, text: str, *, scale: float | None = None) ->
 
     out = np.ascontiguousarray(image, dtype=np.uint8).copy()
     h, w = out.shape[:2]
-    scale = _default_scale(h) if scale is None else scale
+    scale = _default_scale(h, w) if scale is None else scale
     thick, th, _, pad = _text_metrics(scale)
     tw = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)[0][0]
     x0, y1 = 10, h - 10
