@@ -51,8 +51,10 @@ __all__ = ["RenderOutput", "RenderResult", "render_work"]
 
 logger = logging.getLogger(__name__)
 
-#: Version of the ``render.json`` written beside each folder of frames.
-_PARAMS_VERSION = 1
+#: Version of the ``render.json`` written beside each folder of frames; a change of what the
+#: same settings draw raises it, so that frames drawn before are re-rendered (2: legend and
+#: caption text sized from the image's shorter side).
+_PARAMS_VERSION = 2
 
 _FRAME_PNG = re.compile(r"^\d{6}\.png$")
 
