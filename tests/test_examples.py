@@ -144,7 +144,7 @@ def test_sync_report(tmp_path):
 
 
 def test_fetch_example_errors(tmp_path):
-    with pytest.raises(ValidationError, match="valid names: pose2sim, caliscope-board"):
+    with pytest.raises(ValidationError, match="valid names: pose2sim, pose2sim-multi, caliscope-board"):
         fetch_example("nope", tmp_path / "x")
     with pytest.raises(ExampleNotFoundError, match="missing"):
         fetch_caliscope_board(tmp_path / "x", source=tmp_path)
@@ -303,3 +303,28 @@ def test_pose2sim_capture(tmp_path, pose2sim_wheel, caplog):
     proj = cap.rig.project(np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 1.6]]))
     assert proj.in_image.all()
     assert LabelSet.load(cap.labels_path) == LabelSet.default()
+
+
+@pytest.mark.slow
+def test_pose2sim_multi_person_capture(tmp_path, pose2sim_wheel):
+    from pointtraj.cli import main
+
+    out = tmp_path / "p2sm"
+    res = CliRunner().invoke(
+        main,
+        ["examples", "fetch", "pose2sim-multi", "--out", str(out), "--wheel", str(pose2sim_wheel)],
+    )
+    assert res.exit_code == 0, res.output
+    readme = (out / "README.md").read_text()
+    assert "Demo_MultiPerson" in readme and "a woman beside it" in readme
+    assert "calibration adapted" not in res.output  # its four videos are 1088 px wide
+    cap = Capture.open(out)
+    single = fetch_pose2sim(tmp_path / "p2s", wheel=pose2sim_wheel)
+    ref = Capture.open(single.path)
+    assert cap.num_frames == 100 and cap.fps == 60.0 and cap.camera_names == ref.camera_names
+    for cam in cap.rig:  # the same calibration; only the single-person videos were letterboxed
+        assert cam.size == (1088, 1920)
+        np.testing.assert_allclose(cam.R, ref.rig[cam.name].R, atol=1e-12)
+        np.testing.assert_allclose(cam.C, ref.rig[cam.name].C, atol=1e-12)
+    assert not np.array_equal(cap.read("cam03", 50), ref.read("cam03", 50))  # other videos
+    assert (out / "source" / "extrinsics" / "cam01_ext.png").is_file()

@@ -37,7 +37,8 @@ def list_examples() -> None:
 @click.option(
     "--wheel",
     type=click.Path(exists=True, dir_okay=False),
-    help="pose2sim: use this downloaded pose2sim-0.10.49 wheel instead of pip download.",
+    help="pose2sim, pose2sim-multi: use this downloaded pose2sim-0.10.49 wheel instead of pip "
+    "download.",
 )
 @click.option(
     "--source",
@@ -57,11 +58,12 @@ def fetch(
         raise click.UsageError(
             f"unknown example {name!r}; valid names: {', '.join(sorted(EXAMPLES))}"
         )
-    if name != "pose2sim" and wheel is not None:
-        raise click.UsageError("--wheel applies to the pose2sim example only")
+    pose2sim = name.startswith("pose2sim")
+    if not pose2sim and wheel is not None:
+        raise click.UsageError("--wheel applies to the pose2sim examples only")
     if name != "caliscope-board" and (source is not None or copy):
         raise click.UsageError("--source and --copy apply to the caliscope-board example only")
-    options = {"wheel": wheel} if name == "pose2sim" else {"source": source, "link": not copy}
+    options = {"wheel": wheel} if pose2sim else {"source": source, "link": not copy}
     result = fetch_example(name, out, overwrite=force, **options)
     counts = ", ".join(f"{k}={v}" for k, v in result.num_frames.items())
     click.echo(f"{result.name}: {result.path} ({len(result.camera_names)} cameras, {counts})")

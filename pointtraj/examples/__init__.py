@@ -6,6 +6,8 @@ name                   what
 ``pose2sim``           Pose2Sim's ``Demo_SinglePerson`` (``pose2sim==0.10.49`` wheel from PyPI,
                        BSD-3-Clause): 4 portrait cameras, 100 frames at 60 fps, a man balancing
                        on a treadmill; Qualisys calibration.
+``pose2sim-multi``     Pose2Sim's ``Demo_MultiPerson``: the same cameras and calibration, two
+                       people (the man on the treadmill, a woman beside it).
 ``caliscope-board``    caliscope's ``post_optimization`` test session (BSD-2-Clause), read from
                        ``shared/data/caliscope_board_4cam``: 4 webcams, 57 frames at ~6 fps, a
                        person moving a ChArUco board; caliscope calibration and corner files.

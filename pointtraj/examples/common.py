@@ -15,6 +15,8 @@ from .mapping import ImageMapping
 
 POSE2SIM_REQUIREMENT = "pose2sim==0.10.49"
 POSE2SIM_DEMO = "Pose2Sim/Demo_SinglePerson/"
+#: The folder inside the wheel of each Pose2Sim example (the same four cameras and calibration).
+POSE2SIM_DEMOS = {"pose2sim": POSE2SIM_DEMO, "pose2sim-multi": "Pose2Sim/Demo_MultiPerson/"}
 
 _MARK = "pointtraj examples"
 
@@ -50,6 +52,13 @@ EXAMPLES: dict[str, ExampleSpec] = {
         "Pose2Sim Demo_SinglePerson: 4 cameras, 100 frames at 60 fps, 1088x1920 portrait, a man "
         "balancing on a treadmill (Qualisys calibration)",
         f"PyPI wheel {POSE2SIM_REQUIREMENT}, folder {POSE2SIM_DEMO}",
+        "BSD-3-Clause",
+    ),
+    "pose2sim-multi": ExampleSpec(
+        "pose2sim-multi",
+        "Pose2Sim Demo_MultiPerson: the same 4 cameras and calibration, 100 frames at 60 fps, "
+        "1088x1920 portrait, a man balancing on a treadmill and a woman beside it",
+        f"PyPI wheel {POSE2SIM_REQUIREMENT}, folder {POSE2SIM_DEMOS['pose2sim-multi']}",
         "BSD-3-Clause",
     ),
     "caliscope-board": ExampleSpec(

@@ -1,4 +1,5 @@
-"""The ``pose2sim`` example: Pose2Sim's ``Demo_SinglePerson`` from the PyPI wheel."""
+"""The ``pose2sim`` and ``pose2sim-multi`` examples: Pose2Sim's ``Demo_SinglePerson`` and
+``Demo_MultiPerson`` from the PyPI wheel."""
 
 from __future__ import annotations
 
@@ -11,12 +12,13 @@ from pathlib import Path
 
 from ..atomic import write_text_atomic
 from ..camera import CameraRig
-from ..errors import FileFormatError
+from ..errors import FileFormatError, ValidationError
 from ..fetch import cache_root, fetch_verified_wheel
 from ..images import read_rgb
 from .common import (
     EXAMPLES,
     POSE2SIM_DEMO,
+    POSE2SIM_DEMOS,
     POSE2SIM_REQUIREMENT,
     ExampleCapture,
     ExampleNotFoundError,
@@ -100,8 +102,9 @@ def fetch_pose2sim(
     wheel: str | os.PathLike | None = None,
     cache: str | os.PathLike | None = None,
     overwrite: bool = False,
+    example: str = "pose2sim",
 ) -> ExampleCapture:
-    """Lay out Pose2Sim's ``Demo_SinglePerson`` as a pointtraj capture.
+    """Lay out Pose2Sim's ``Demo_SinglePerson`` (or ``Demo_MultiPerson``) as a pointtraj capture.
 
     Writes ``rig.toml`` (from ``calibration/Calib.qca.txt``, cameras named like the videos,
     intrinsics adapted to the stored video size where it differs, logged as a warning),
@@ -120,6 +123,9 @@ def fetch_pose2sim(
         Wheel cache folder for :func:`download_pose2sim_wheel`.
     overwrite : bool
         Replace ``out`` if it holds a capture written by this module.
+    example : {"pose2sim", "pose2sim-multi"}
+        Which demo: one person, or two (the same cameras, calibration and size correction;
+        the reference frames for the correction are ``Demo_SinglePerson``'s).
 
     Returns
     -------
@@ -136,6 +142,11 @@ def fetch_pose2sim(
     from ..rigio.qualisys import load_qualisys
     from ..rigio.toml import save_rig_toml
 
+    if example not in POSE2SIM_DEMOS:
+        raise ValidationError(
+            f"unknown Pose2Sim example {example!r}; valid: {', '.join(POSE2SIM_DEMOS)}"
+        )
+    folder = POSE2SIM_DEMOS[example]
     out = Path(out)
     tmp = _start_output(out, overwrite)
     try:
@@ -146,31 +157,32 @@ def fetch_pose2sim(
             raise FileFormatError(wheel, f"not a readable wheel ({exc})") from None
         with z:
             names = z.namelist()
-            demo = [n for n in names if n.startswith(POSE2SIM_DEMO) and not n.endswith("/")]
+            demo = [n for n in names if n.startswith(folder) and not n.endswith("/")]
             videos = sorted(
-                n for n in demo if n.startswith(POSE2SIM_DEMO + "videos/") and n.endswith(".mp4")
+                n for n in demo if n.startswith(folder + "videos/") and n.endswith(".mp4")
             )
             calibs = sorted(
-                n
-                for n in demo
-                if n.startswith(POSE2SIM_DEMO + "calibration/") and n.endswith(".qca.txt")
+                n for n in demo if n.startswith(folder + "calibration/") and n.endswith(".qca.txt")
             )
             if not videos or not calibs:
                 raise FileFormatError(
-                    wheel, f"no {POSE2SIM_DEMO}videos/*.mp4 or calibration/*.qca.txt inside"
+                    wheel, f"no {folder}videos/*.mp4 or calibration/*.qca.txt inside"
                 )
             src = tmp / "source"
             calib = _extract(z, calibs[0], src / Path(calibs[0]).name)
             for n in demo:
+                if n[len(folder) :] == "Config.toml":
+                    _extract(z, n, src / "Config.toml")
+            for n in names:  # the size correction's reference frames (the same cameras)
                 rel = n[len(POSE2SIM_DEMO) :]
-                if rel == "Config.toml" or rel.startswith("calibration/extrinsics/"):
+                if n.startswith(POSE2SIM_DEMO + "calibration/extrinsics/") and not n.endswith("/"):
                     _extract(z, n, src / rel.removeprefix("calibration/"))
             for n in videos:
                 _extract(z, n, tmp / "videos" / Path(n).name)
             lic = [n for n in names if n.endswith(".dist-info/licenses/LICENSE")]
             if lic:
                 _extract(z, lic[0], tmp / "LICENSE")
-            shipped = sorted({n[len(POSE2SIM_DEMO) :].split("/")[0] for n in demo})
+            shipped = sorted({n[len(folder) :].split("/")[0] for n in demo})
         cams = [Path(n).stem for n in videos]
         rig = _match_cameras(load_qualisys(calib), cams, calib)
         counts, corrections, evidence, fixed = {}, {}, {}, []
@@ -198,7 +210,7 @@ def fetch_pose2sim(
             )
         rig = CameraRig(fixed)
         save_rig_toml(rig, tmp / "rig.toml")
-        spec = EXAMPLES["pose2sim"]
+        spec = EXAMPLES[example]
         _save_capture_toml(
             tmp / "capture.toml",
             POSE2SIM_FPS,
@@ -214,13 +226,13 @@ def fetch_pose2sim(
             "reference pose outputs shipped in the wheel: "
             + (", ".join(reference) if reference else "none (only " + ", ".join(shipped) + ")")
         )
-        _write_pose2sim_readme(tmp, rig, counts, corrections, notes)
+        _write_pose2sim_readme(tmp, rig, counts, corrections, notes, example)
         _finish_output(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     logger.info("wrote %s: %d cameras, %s frames", out, len(rig), counts)
-    return ExampleCapture("pose2sim", out, rig.names, counts, POSE2SIM_FPS, corrections, notes)
+    return ExampleCapture(example, out, rig.names, counts, POSE2SIM_FPS, corrections, notes)
 
 
 def _write_pose2sim_readme(
@@ -229,7 +241,14 @@ def _write_pose2sim_readme(
     counts: Mapping[str, int],
     corrections: Mapping[str, ImageMapping],
     notes: list[str],
+    example: str = "pose2sim",
 ) -> None:
+    demo = POSE2SIM_DEMOS[example]
+    who = (
+        "a man balancing on a treadmill"
+        if example == "pose2sim"
+        else "a man balancing on a treadmill and a woman beside it"
+    )
     rows = "\n".join(
         f"| {c.name} | {c.size[0]}x{c.size[1]} | {counts[c.name]} | "
         + (corrections[c.name].describe() if c.name in corrections else "none")
@@ -237,15 +256,15 @@ def _write_pose2sim_readme(
         for c in rig
     )
     text = (
-        f"""# Pose2Sim Demo_SinglePerson, as a pointtraj capture
+        f"""# Pose2Sim {demo.split("/")[1]}, as a pointtraj capture
 
-Written by `pointtraj examples fetch pose2sim`.
+Written by `pointtraj examples fetch {example}`.
 
-- **Origin**: folder `{POSE2SIM_DEMO}` of the PyPI wheel `{POSE2SIM_REQUIREMENT}`
+- **Origin**: folder `{demo}` of the PyPI wheel `{POSE2SIM_REQUIREMENT}`
   (<https://github.com/perfanalytics/pose2sim>), by David Pagnon / perfanalytics.
 - **Licence**: BSD-3-Clause, Copyright (c) 2022, perfanalytics (`LICENSE`). Keep the licence
   with any copy of these files.
-- **Content**: {len(rig)} static cameras filming a man balancing on a treadmill, portrait
+- **Content**: {len(rig)} static cameras filming {who}, portrait
   1088x1920, 60 fps; calibration by a Qualisys system (`source/Calib.qca.txt`), converted to
   `rig.toml` by `pointtraj.rigio.load_qualisys`.
 - `labels.toml` is pointtraj's default label set (14 body parts, ball, racket).

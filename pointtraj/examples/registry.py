@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from functools import partial
 
 from ..errors import ValidationError
 from .caliscope import fetch_caliscope_board
@@ -29,7 +30,11 @@ def fetch_example(name: str, out: str | os.PathLike, **options: object) -> Examp
     ValidationError
         For an unknown name (listing the valid ones).
     """
-    funcs = {"pose2sim": fetch_pose2sim, "caliscope-board": fetch_caliscope_board}
+    funcs = {
+        "pose2sim": fetch_pose2sim,
+        "pose2sim-multi": partial(fetch_pose2sim, example="pose2sim-multi"),
+        "caliscope-board": fetch_caliscope_board,
+    }
     if name not in funcs:
         raise ValidationError(f"unknown example {name!r}; valid names: {', '.join(EXAMPLES)}")
     return funcs[name](out, **options)  # type: ignore[operator]
