@@ -2,14 +2,35 @@
 
 It reads the ground-truth label map of an image
 (:func:`pointtraj.synth.groundtruth.load_label_map`, (H, W) int16, -1 = background) and turns it
-into confidences L2D (h, w, K) that fail the way real recognisers do. The noise model, with the
-parameters of :class:`SimulatedNoise`:
+into confidences L2D (h, w, K) that fail the way real recognisers do. Two noise models, chosen
+by :attr:`SimulatedNoise.model` (``-o model=independent`` on the command line, ``model =
+"independent"`` in a ``[semantics]`` options table):
+
+- ``correlated`` (the default since issue 19): errors correlated the way the real
+  ``body-parts`` recogniser's are, with rates fitted to it on the Pose2Sim demo
+  (``benchmarks/study_recognizer_errors.py``; the table is in ``docs/recognizers.md``);
+- ``independent`` (the default before): confusions drawn independently per camera, part and
+  block of frames, at 8-pixel cells. Its output is unchanged, draw for draw.
+
+The label maps are rendered front surfaces, so in both models the class reported at the
+projection of a point hidden in a view is its occluder's (another part, the ball), as a real
+recogniser sees it.
+
+Steps, with the parameters of :class:`SimulatedNoise`:
 
 1. **Per-view confusions** (decided once per camera and block of ``hold_frames`` frames, so
    they persist as a real recogniser's errors do while the pose changes little):
 
-   - with probability ``p_flip`` the whole view is left/right mirrored (every ``left_*`` class is
-     reported as its ``right_*`` twin and vice versa, as pose estimators do on back views);
+   - *(correlated)* each figure is reported left/right mirrored (every ``left_*`` class as its
+     ``right_*`` twin and vice versa) with a probability that depends on the camera's viewing
+     direction relative to the figure's facing direction: ``p_flip_front`` for a camera in
+     front of it, ``p_flip_side`` at its side, ``p_flip_back`` behind it, linear in the cosine
+     of the angle between (:meth:`SimulatedNoise.flip_probability`). The facing directions are
+     the figures' torso axes in the ground truth (:func:`view_cosines`); figures are told
+     apart by ``gt/instances``. With probability ``flip_coupling`` a view uses the draw shared
+     by all views of the figure in that frame block (``frame // hold_frames``), so the views
+     of one direction flip together; otherwise its own draw;
+   - with probability ``p_flip`` the whole view is mirrored, whatever the direction;
    - per body part, with probability ``p_swap`` the part is reported as its left/right twin;
    - otherwise, per body part, with probability ``p_neighbour`` it is reported as a neighbouring
      part of the same side (upper arm <-> forearm <-> hand, thigh <-> shin <-> foot, torso <->
@@ -17,26 +38,72 @@ parameters of :class:`SimulatedNoise`:
    - per class, with probability ``p_miss`` the class is missed: its channel is zero in the view;
    - per class, the peak confidence is drawn uniformly from ``[peak_min, peak_max]``.
 
-2. **Coarse, blurred output**: the (relabelled) one-hot map is area-averaged to
+2. *(correlated)* **Part boundaries**, at image pixels:
+
+   - *shifted*: a pixel of part p whose nearest neighbouring part q is within ``boundary_px *
+     |g|`` pixels is reported as q, where g is a smooth random field in [-1, 1] (correlation
+     length ``boundary_scale_px``) whose sign says which of the two parts encroaches on the
+     other along that stretch of boundary. Confusions between neighbouring parts thus lie in
+     a band along their boundary, as a segmenter's boundary placement errors do, never in
+     whole parts;
+   - *soft*: on the figure's pixels, each body part's confidence is ``exp(-(d / softness_px)^2)``
+     with d the distance to that part's pixels (1 on the part), as the real recogniser's
+     confidences fall off across a boundary.
+
+3. **Coarse, blurred output**: the (relabelled) one-hot or soft map is area-averaged to
    ``ceil(H / downsample) x ceil(W / downsample)`` cells, then blurred by a Gaussian of
    ``blur_sigma`` cells, then scaled by the peak confidence.
 
-3. **Objects as boxes** (classes of kind ``"object"``, e.g. ball): each connected blob of the
+4. **Objects as boxes** (classes of kind ``"object"``, e.g. ball): each connected blob of the
    class in the coarse map becomes its bounding box, its size and position jittered by
    ``box_jitter`` (relative standard deviation); every cell in the box gets the detection's
    confidence (uniform in ``[peak_min, peak_max]``), as a YOLO-style detector's box does, so the
    box also covers whatever lies around or in front of the object.
 
-4. **False positives**: a Poisson(``fp_rate``) number of boxes per image, of a random class, at
+5. **False positives**: a Poisson(``fp_rate``) number of boxes per image, of a random class, at
    a random place, with sides of ``fp_size`` (fractions of the shorter image side) and
    confidence uniform in ``fp_conf``.
 
-5. **Low overall noise**: ``|N(0, noise_std)|`` is added to every cell and class; the result is
+6. **Low overall noise**: ``|N(0, noise_std)|`` is added to every cell and class; the result is
    clipped to [0, 1].
 
 Every draw comes from ``numpy.random.default_rng`` seeded by (``seed``, camera name, frame) (and
-the frame block for the confusions), so the output is deterministic. The presets
-(:data:`NOISE_PRESETS`):
+the frame block for the confusions), so the output is deterministic.
+
+Presets of the correlated model (:data:`NOISE_PRESETS`, ``noise = "..."``):
+
+============ ===== ===== ===== ======== ====== ====== ===== ====== ======= ======= ==== ====
+preset       front side  back  coupling soft   bound  swap  p_miss fp_rate noise   peak ds
+============ ===== ===== ===== ======== ====== ====== ===== ====== ======= ======= ==== ====
+``none``     0     0     0     0        0      0      0     0      0       0       1    2
+``low``      0.09  0     0     0        5.5    2.5    0.01  0.03   0.2     0.02    0.8  2
+``default``  0.18  0     0     0        5.5    5.0    0.02  0.08   0.5     0.05    0.6  2
+``high``     0.36  0     0     0        5.5    10.0   0.05  0.15   1.5     0.08    0.5  2
+============ ===== ===== ===== ======== ====== ====== ===== ====== ======= ======= ==== ====
+
+(front, side, back: ``p_flip_front``, ``p_flip_side``, ``p_flip_back``; soft, bound:
+``softness_px``, ``boundary_px`` in image pixels; peak: ``peak_min``, to ``peak_max`` = 1; ds:
+``downsample``.) All have ``p_flip = p_neighbour = 0``, ``boundary_scale_px = 16``,
+``blur_sigma = 1`` cell (1.5 in ``high``, 0 in ``none``) and ``hold_frames = 15``. Where the
+``default`` values come from (``docs/recognizers.md`` has the measured table):
+
+- ``p_flip_front``, ``p_flip_side``, ``p_flip_back``: the real recogniser's whole-figure flips
+  on the Pose2Sim demo: 14 % of the front views (7 of 50, all in one camera and one run of
+  frames, the other front camera never flipped at the same frames: hence ``flip_coupling =
+  0``) and none of 49 back views. The demo has no side views, so the rate falls linearly from
+  the front to 0 at the side; 0.18 gives the synthetic demo's front views (within 60 degrees,
+  at cosines 0.5 - 1) the measured 14 % on average;
+- ``softness_px``: the width of the band along the boundary between neighbouring parts where
+  the runner-up's confidence exceeds half the winner's, 0.097 torso lengths for the real
+  recogniser (8.6 px at the demo images' 640-pixel scale); 5.5 px gives the same share of the
+  synthetic demo figure's torso;
+- ``boundary_px``: the real recogniser places part boundaries from landmarks that its own
+  triangulated skeleton reprojects to within 16 px at 1920 px (5.4 px at 640);
+- ``downsample``: the real recogniser's map has 1.25-pixel cells at 640x512 (its 512-cell
+  longer side); 2 is the nearest whole number that keeps the demo's maps small (320x256).
+
+The independent model's presets (:data:`INDEPENDENT_PRESETS`, ``model = "independent"``), as
+before issue 19:
 
 ============ ====== ====== ====== ====== ====== ======= ========= ==== =========
 preset       p_flip p_swap p_nbr  p_miss fp_rate noise  peak      blur hold
@@ -47,13 +114,9 @@ preset       p_flip p_swap p_nbr  p_miss fp_rate noise  peak      blur hold
 ``high``     0.10   0.15   0.25   0.15   1.5    0.08    0.5 - 1   1.5  15
 ============ ====== ====== ====== ====== ====== ======= ========= ==== =========
 
-All presets downsample by 8, jitter boxes by 0.1 and draw false-positive boxes with sides of
-0.05 - 0.2 of the shorter image side and confidence 0.3 - 0.8.
-
-This is the regime where view pooling matters: an error in one view (a swapped or confused part,
-a box that covers the hand dribbling the ball, a false-positive box) is a vote that averaging
-mixes into every point it touches, while the visibility-weighted medoid over many views picks a
-view that agrees with the majority and leaves the outlier out.
+All of them downsample by 8, jitter boxes by 0.1 and draw false-positive boxes with sides of
+0.05 - 0.2 of the shorter image side and confidence 0.3 - 0.8. Its confusions are independent
+per view, so averaging over views cancels them; the correlated model's do not cancel that way.
 """
 
 from __future__ import annotations
@@ -127,6 +190,27 @@ class SimulatedNoise:
         Standard deviation of the absolute Gaussian noise added everywhere.
     hold_frames : int
         Length of the frame blocks over which per-view confusions persist.
+    model : str
+        ``"correlated"`` or ``"independent"`` (:data:`MODELS`). The independent model refuses
+        the correlated model's own parameters below (they must be 0).
+    p_flip_front, p_flip_side, p_flip_back : float
+        Probability per (view, figure) and frame block of a whole-figure left/right flip, for a
+        camera in front of the figure, at its side, behind it (linear in the cosine between).
+    flip_coupling : float
+        Probability that a view's flip uses the draw shared by all views of the figure in the
+        frame block (1: views flip together in order of their flip probability; 0: each view
+        draws its own).
+    softness_px : float
+        Fall-off length (image pixels) of each body part's confidence outside the part.
+    boundary_px : float
+        Largest shift (image pixels) of a boundary between neighbouring parts.
+    boundary_scale_px : float
+        Correlation length (image pixels) of the random boundary shift along the boundary.
+
+    Notes
+    -----
+    The field defaults are the independent model's ``default`` preset; the correlated model's
+    presets are :data:`NOISE_PRESETS` (:func:`noise_preset`).
     """
 
     downsample: int = 8
@@ -258,8 +342,8 @@ _CORRELATED_DEFAULT = SimulatedNoise(
     p_swap=0.02,
     p_neighbour=0.0,
     p_miss=0.08,
-    p_flip_front=0.14,
-    p_flip_side=0.07,
+    p_flip_front=0.18,
+    p_flip_side=0.0,
     p_flip_back=0.0,
     flip_coupling=0.0,
     softness_px=5.5,
@@ -837,14 +921,16 @@ class SimulatedRecognizer(Recognizer):
     kinds : sequence of K str, optional
         Class kinds; ``"object"`` classes are reported as boxes.
     noise : str or SimulatedNoise
-        A preset of :data:`NOISE_PRESETS` (``none``, ``low``, ``default``, ``high``) or
-        explicit parameters.
+        A preset (``none``, ``low``, ``default``, ``high``) of the noise model named by the
+        ``model`` override (default ``correlated``: :data:`NOISE_PRESETS`; ``independent``:
+        :data:`INDEPENDENT_PRESETS`), or explicit parameters.
     capture : path-like, optional
         Capture folder with ``gt/``; otherwise taken from each call's :class:`ImageContext`.
     seed : int
         Seed of the noise.
     **overrides
-        Fields of :class:`SimulatedNoise` overriding the preset, e.g. ``downsample=4``.
+        Fields of :class:`SimulatedNoise` overriding the preset, e.g. ``downsample=4`` or
+        ``model="independent"``.
 
     Notes
     -----
