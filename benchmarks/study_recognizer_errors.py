@@ -28,8 +28,12 @@ their longer side is ``--size`` (640, the demo's 640x512); the simulator on a sy
 
 Usage (the table of ``docs/recognizers.md``)::
 
-    nice -n 10 .venv/bin/python benchmarks/study_recognizer_errors.py \\
-        --pose2sim /tmp/hsim/p2s --every 5 --synthetic /tmp/hsim/demo_new/capture --sim-every 3
+    nice -n 10 .venv/bin/python benchmarks/study_recognizer_errors.py --pose2sim P2S \\
+        --every 4 --synthetic DEMO/capture --sim-every 15 --sim-seeds 0 1 2 3 4 5 6 7 8 9 10 11
+
+``--sim-option model=independent`` measures the independent model instead. The real
+recogniser's swaps are measured on the frames where at least two cameras see the person (its
+skeleton is triangulated per frame).
 """
 
 from __future__ import annotations
@@ -254,6 +258,8 @@ def measure_real(path: Path, every: int, size: int, threads: int) -> list[dict]:
 # -- the simulator on a synthetic capture ----------------------------------------------------
 def measure_simulated(path: Path, every: int, options: dict) -> list[dict]:
     """One record per (camera, frame) of the simulated recogniser on a synthetic capture."""
+    import cv2
+
     from pointtraj.labelset import LabelSet
     from pointtraj.semantics.recognizers import ImageContext, make_recognizer
     from pointtraj.synth.groundtruth import load_label_map, segment_ground_truth
@@ -292,8 +298,6 @@ def measure_simulated(path: Path, every: int, options: dict) -> list[dict]:
             cell_px = W / L2D.shape[1]
             band, edges = boundary_band(L2D, nbr, cell_px)
             # View flip: the argmax side against the ground-truth side on lateral pixels.
-            import cv2
-
             up_map = cv2.resize(L2D, (W, H), interpolation=cv2.INTER_NEAREST)
             arg, conf = up_map.argmax(2), up_map.max(2)
             gt_side = np.where(lab >= 0, cls_side[np.maximum(lab, 0)], 0)
