@@ -11,6 +11,7 @@ from pointtraj.errors import FileFormatError, ValidationError
 from pointtraj.labelset import LabelSet
 from pointtraj.semantics.recognizers import ImageContext, make_recognizer
 from pointtraj.semantics.recognizers.simulated import (
+    INDEPENDENT_PRESETS,
     NOISE_PRESETS,
     SimulatedNoise,
     SimulatedRecognizer,
@@ -19,7 +20,7 @@ from pointtraj.semantics.recognizers.simulated import (
 )
 
 LABELS = LabelSet.default()
-NONE = NOISE_PRESETS["none"]
+NONE = INDEPENDENT_PRESETS["none"]  # the independent model: 8-pixel cells, no noise
 
 
 def figure_map(H=96, W=128):
@@ -51,7 +52,7 @@ def test_noise_free_output_is_the_area_averaged_one_hot_map():
 
 def test_deterministic_per_camera_and_frame():
     lab = figure_map()
-    kw = dict(class_names=LABELS.names, kinds=LABELS.kinds, noise="high")
+    kw = dict(class_names=LABELS.names, kinds=LABELS.kinds, noise=INDEPENDENT_PRESETS["high"])
     a = simulate_confidences(lab, camera="c01", frame=3, **kw)
     np.testing.assert_array_equal(a, simulate_confidences(lab, camera="c01", frame=3, **kw))
     assert not np.array_equal(a, simulate_confidences(lab, camera="c02", frame=3, **kw))
@@ -158,6 +159,7 @@ def test_errors():
         SimulatedRecognizer(LABELS.names, blurr=2)
     rec = make_recognizer("simulated", LABELS, noise="low", downsample=4)
     assert rec.noise.downsample == 4 and rec.noise.p_swap == NOISE_PRESETS["low"].p_swap
+    assert rec.noise.model == "correlated"
     with pytest.raises(ValidationError, match="ImageContext"):
         rec.recognize(None)
     with pytest.raises(ValidationError, match="no capture folder"):
@@ -206,7 +208,7 @@ def test_person_masks_from_the_ground_truth_instance_map(tmp_path):
     inst[:, :64][lab[:, :64] >= 0] = 7  # the left figure (its instance id in the scene)
     inst[:, 64:][lab[:, 64:] >= 0] = 3  # the right one, and the ball (instance 3 too)
     groundtruth.save_label_map(tmp_path, "cam01", 0, lab)
-    rec = make_recognizer("simulated", LABELS, noise="none", downsample=4)
+    rec = make_recognizer("simulated", LABELS, noise="none", model="independent", downsample=4)
     ctx = ImageContext("cam01", 0, capture=str(tmp_path))
     L2D, people = rec.recognize_people(None, ctx)
     assert people is None  # no gt/instances yet
@@ -220,7 +222,7 @@ def test_person_masks_from_the_ground_truth_instance_map(tmp_path):
     body = np.isin(lab[2::4, 2::4], LABELS.classes_of_kind("body"))
     np.testing.assert_array_equal(people >= 0, body)  # the ball is not a person
     # every person missed: no person pixels
-    _, missed = make_recognizer("simulated", LABELS, noise="none", p_miss=1.0).recognize_people(
-        None, ctx
-    )
+    _, missed = make_recognizer(
+        "simulated", LABELS, noise="none", model="independent", p_miss=1.0
+    ).recognize_people(None, ctx)
     assert (missed == -1).all()
