@@ -597,11 +597,12 @@ def _temporal_verdicts(means: dict[str, dict[str, float]], lags: list[str], metr
             low = min(finite, key=finite.get)
             metrics["temporal_nc.view_minus_average.min"] = finite[low]
             below = [n for n, g in finite.items() if g <= 0]
-            verdict = (
-                "**yes**, by at least "
-                if not below
-                else f"**no**: not at {', '.join(below)}; the smallest margin is "
-            )
+            if not below:
+                verdict = "**yes**, by at least "
+            elif len(below) == len(finite):
+                verdict = "**no**, below it at every lag; the smallest margin is "
+            else:
+                verdict = f"**no**: not at {', '.join(below)}; the smallest margin is "
             lines.append(
                 "View pooling above the paper's average baseline (`average`, all cameras in "
                 f"whose image the point falls) at every lag: {verdict}"
@@ -626,7 +627,7 @@ def _temporal_verdicts(means: dict[str, dict[str, float]], lags: list[str], metr
                     else " by lag: " + "; ".join(f"{n}: {o}" for n, o, _ in orders) + "."
                 )
             )
-    return [*lines, ""] if lines else []
+    return [x for line in lines for x in (line, "")]
 
 
 def _affinity_section(traj, labels_for_study, source: str, cfg, aff_cfg, folder, metrics):
@@ -1116,11 +1117,14 @@ def headline(metrics: dict[str, Any]) -> list[str]:
     if acc:
         out.append("label accuracy: " + ", ".join(acc))
     for p, name in HEADLINE_NAMES.items():
-        nc = [
-            (k.split(".", 2)[2], v)
-            for k, v in metrics.items()
-            if k.startswith(f"temporal_nc.{p}.") and not k.endswith(".support")
-        ]
+        nc = sorted(
+            (
+                (k.split(".", 2)[2], v)
+                for k, v in metrics.items()
+                if k.startswith(f"temporal_nc.{p}.") and not k.endswith(".support")
+            ),
+            key=lambda item: float(item[0].rstrip("s")),  # metrics.json sorts 11s before 1s
+        )
         if nc:
             out.append(
                 f"temporal consistency, {name}: "

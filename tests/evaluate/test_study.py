@@ -235,5 +235,10 @@ def test_temporal_verdict_names_the_lags_where_view_falls_below():
     means = {"view": {"1s": 0.9, "3s": 0.95}, "average": {"1s": 0.94, "3s": 0.9}}
     metrics = {}
     lines = _temporal_verdicts(means, ["1s", "3s"], metrics)
-    assert "**no**: not at 1s" in lines[0]
+    assert "**no**: not at 1s;" in lines[0] and lines[1] == ""  # a paragraph each
     assert metrics["temporal_nc.view_minus_average.min"] == pytest.approx(-0.04)
+    means["view"]["3s"] = 0.8
+    assert "**no**, below it at every lag" in _temporal_verdicts(means, ["1s", "3s"], {})[0]
+    # The headline lists the lags in time order (metrics.json sorts "11s" before "1s").
+    nc = {f"temporal_nc.view.{s}s": s / 100 for s in (11, 1, 3)}
+    assert "view pooling: 0.01 at 1s, 0.03 at 3s, 0.11 at 11s" in "\n".join(headline(nc))
