@@ -512,3 +512,16 @@ def test_two_bone_ik_keeps_bone_lengths_and_reaches():
         else:  # out of reach: as close as possible along the same direction
             direction = (wrist - shoulder) / np.linalg.norm(wrist - shoulder)
             assert np.allclose(direction, (target - shoulder) / reach, atol=1e-9)
+
+
+def test_paper69t_is_paper69_at_an_eighth_and_10_hz():
+    """The rig of pipelines/paper_table1.toml: paper69's geometry and fields of view."""
+    full, small = make_rig("paper69"), make_rig("paper69t")
+    np.testing.assert_allclose(small.C, full.C)
+    assert all(tuple(c.size) == (160, 128) for c in small)
+    # The same fields of view: a point projects to an eighth of its full-size pixel.
+    X = np.array([[0.2, -0.1, 1.2], [0.0, 0.3, 0.4]])
+    np.testing.assert_allclose(
+        (small.project(X).pixels + 0.5) * 8, full.project(X).pixels + 0.5, atol=1e-6
+    )
+    assert PRESETS["paper69t"].fps == 10.0 and PRESETS["paper69"].fps == 30.0
