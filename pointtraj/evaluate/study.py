@@ -598,15 +598,17 @@ def _temporal_verdicts(means: dict[str, dict[str, float]], lags: list[str], metr
             metrics["temporal_nc.view_minus_average.min"] = finite[low]
             below = [n for n, g in finite.items() if g <= 0]
             if not below:
-                verdict = "**yes**, by at least "
+                verdict = f"**yes**, by at least {finite[low]:.3f} (at {low})"
             elif len(below) == len(finite):
-                verdict = "**no**, below it at every lag; the smallest margin is "
+                verdict = f"**no**, below it at every lag, by up to {-finite[low]:.3f} (at {low})"
             else:
-                verdict = f"**no**: not at {', '.join(below)}; the smallest margin is "
+                verdict = (
+                    f"**no**: not at {', '.join(below)}; below it by up to {-finite[low]:.3f} "
+                    f"(at {low})"
+                )
             lines.append(
                 "View pooling above the paper's average baseline (`average`, all cameras in "
-                f"whose image the point falls) at every lag: {verdict}"
-                f"{finite[low]:+.3f} (at {low})."
+                f"whose image the point falls) at every lag: {verdict}."
             )
     trio = [p for p in ("view", "view_soft", "average_visible") if p in means]
     if len(trio) > 1:
