@@ -92,12 +92,13 @@ def prepare_work(capture: Path, work: Path, options: list[str]):
 
 # -- 1. affinity study ---------------------------------------------------------------------------
 def frac_by_bin(dist: np.ndarray, differ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(fraction of differing pairs, pair count) per distance bin."""
-    idx = np.digitize(dist, BINS) - 1
-    ok = (idx >= 0) & (idx < BINS.size - 1)
-    count = np.bincount(idx[ok], minlength=BINS.size - 1)
-    bad = np.bincount(idx[ok], differ[ok].astype(float), minlength=BINS.size - 1)
-    return bad / np.maximum(count, 1), count
+    """(fraction of differing pairs, pair count) per distance bin: the report's binning
+    (:func:`pointtraj.evaluate.metrics.disagreement_by_distance`), empty bins 0."""
+    from pointtraj.evaluate.metrics import disagreement_by_distance
+
+    differ = np.asarray(differ, bool)
+    frac, count = disagreement_by_distance(dist, differ, np.zeros_like(differ), BINS)
+    return np.nan_to_num(frac), count
 
 
 def affinity_study(traj, label, taus, modes, threshold: float, seed: int, draws: int) -> None:

@@ -43,39 +43,19 @@ from pointtraj.synth.groundtruth import load_ground_truth
 from pointtraj.synth.presets import PRESETS, RigPreset, ring_cameras
 from pointtraj.synth.render import render_capture
 
-#: The paper's two poolings and ours (``view_soft``).
-POOLS = ("view", "view_soft", "average")
-
-
-def _paper69_quarter() -> CameraRig:
-    size, focal, radius = (320, 256), 150.0, 1.6
-    lower = ring_cameras(35, radius, 1.0, (0.0, 0.0, 0.9), size, focal)
-    upper = ring_cameras(
-        34, radius, 2.2, (0.0, 0.0, 1.1), size, focal, start_angle=np.pi / 34, first_index=35
-    )
-    return CameraRig(lower + upper)
-
-
-def _paper69_tiny() -> CameraRig:
-    size, focal, radius = (160, 128), 75.0, 1.6
-    lower = ring_cameras(35, radius, 1.0, (0.0, 0.0, 0.9), size, focal)
-    upper = ring_cameras(
-        34, radius, 2.2, (0.0, 0.0, 1.1), size, focal, start_angle=np.pi / 34, first_index=35
-    )
-    return CameraRig(lower + upper)
+#: The paper's two poolings, ours (``view_soft``) and the average over the visible cameras.
+POOLS = ("view", "view_soft", "average", "average_visible")
 
 
 def _ring12_small() -> CameraRig:
     return CameraRig(ring_cameras(12, 2.5, [1.1, 2.0], (0.0, 0.0, 0.9), (320, 256), 168.0))
 
 
+#: The study's rigs: the library's ``paper69q`` (320x256) and ``paper69t`` (160x128, 10 Hz,
+#: also the rig of ``pipelines/paper_table1.toml``), and a study-only ring12 at 10 Hz.
 STUDY_PRESETS = {
-    "study-paper69-quarter": RigPreset(
-        "paper69 geometry at 320x256, f=150 px (same FOV), 30 Hz", _paper69_quarter, 30.0
-    ),
-    "study-paper69-10hz": RigPreset(
-        "paper69 geometry at 160x128, f=75 px (same FOV), sampled at 10 Hz", _paper69_tiny, 10.0
-    ),
+    "study-paper69-quarter": PRESETS["paper69q"],
+    "study-paper69-10hz": PRESETS["paper69t"],
     "study-ring12-10hz": RigPreset(
         "ring12 geometry at 320x256, f=168 px (same FOV), sampled at 10 Hz", _ring12_small, 10.0
     ),

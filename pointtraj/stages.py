@@ -152,9 +152,16 @@ class SemanticsStageConfig(SemanticsConfig):
 
     recognizer: str = "simulated"
     options: dict[str, Any] = field(default_factory=dict)
-    # The paper's view and average pooling first (the report compares them), then ours and the
-    # baselines.
-    poolings: tuple[str, ...] = ("view", "average", "view_soft", "max", "product")
+    # The paper's view and average pooling first (the report compares them), then the average
+    # over the visible cameras only, ours and the other baselines.
+    poolings: tuple[str, ...] = (
+        "view",
+        "average",
+        "average_visible",
+        "view_soft",
+        "max",
+        "product",
+    )
 
     def semantics_config(self) -> SemanticsConfig:
         """The plain :class:`SemanticsConfig` part."""

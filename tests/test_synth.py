@@ -594,3 +594,16 @@ def test_cli_renders_a_twin_of_a_rig_file(tmp_path):
     assert res.exit_code == 1 and "holds a different synthetic capture" in res.output
     res = CliRunner().invoke(main, ["synth", "--at", "0,0,1", "--out", str(tmp_path / "x")])
     assert res.exit_code != 0 and "give --rig" in res.output
+
+
+def test_paper69t_is_paper69_at_an_eighth_and_10_hz():
+    """The rig of pipelines/paper_table1.toml: paper69's geometry and fields of view."""
+    full, small = make_rig("paper69"), make_rig("paper69t")
+    np.testing.assert_allclose(small.C, full.C)
+    assert all(tuple(c.size) == (160, 128) for c in small)
+    # The same fields of view: a point projects to an eighth of its full-size pixel.
+    X = np.array([[0.2, -0.1, 1.2], [0.0, 0.3, 0.4]])
+    np.testing.assert_allclose(
+        (small.project(X).pixels + 0.5) * 8, full.project(X).pixels + 0.5, atol=1e-6
+    )
+    assert PRESETS["paper69t"].fps == 10.0 and PRESETS["paper69"].fps == 30.0

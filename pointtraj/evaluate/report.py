@@ -114,6 +114,12 @@ def temporal_table(ours: Mapping[str, Mapping[int, tuple[float, float, int]]]) -
     ----------
     ours : mapping
         ``{pooling: {seconds: (mean, std, n)}}``.
+
+    Returns
+    -------
+    str
+        One row per pooling of ours, then the paper's rows (:data:`paper.TEMPORAL_NC`), at
+        the union of the lags (``n/a`` where ours has no figure).
     """
     secs = sorted({s for d in ours.values() for s in d} | set(paper.TEMPORAL_NC["view"]))
     head = "| pooling | " + " | ".join(f"{s} s" for s in secs) + " |"
@@ -136,7 +142,14 @@ def plot_temporal(
     """Normalised correlation against time, ours (solid) and the paper's (dashed)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 4))
-    colors = {"view": "tab:blue", "average": "tab:orange", "max": "tab:green", "product": "tab:red"}
+    colors = {
+        "view": "tab:blue",
+        "view_soft": "tab:cyan",
+        "average": "tab:orange",
+        "average_visible": "tab:brown",
+        "max": "tab:green",
+        "product": "tab:red",
+    }
     for name, d in ours.items():
         s = sorted(d)
         m = np.array([d[k][0] for k in s], float)

@@ -70,7 +70,9 @@ class EvaluateConfig:
     validity_draws : int
         Random camera subsets per held-out camera and subset size.
     validity_poolings : tuple of str
-        Poolings compared in the validity study.
+        Poolings compared in the validity study (:data:`~pointtraj.semantics.pooling.POOLINGS`):
+        by default the paper's two (``view``; ``average``, over all cameras in whose image the
+        point falls), ours (``view_soft``) and the average over the visible cameras.
     affinity_radius : float
         Largest pair distance in the affinity study (m); the paper's Figure 6 goes to 1 m.
     affinity_draws : int
@@ -85,7 +87,7 @@ class EvaluateConfig:
     validity_tracks: int = 3000
     validity_frames: int = 30
     validity_draws: int = 3
-    validity_poolings: tuple[str, ...] = ("view", "average")
+    validity_poolings: tuple[str, ...] = ("view", "view_soft", "average", "average_visible")
     affinity_radius: float = 1.0
     affinity_draws: int = 16
     affinity_threshold: float = 0.5
@@ -96,6 +98,14 @@ class EvaluateConfig:
         for name in ("validity_tracks", "validity_frames", "validity_draws"):
             if getattr(self, name) < 1:
                 raise ValidationError(f"evaluate.{name} must be >= 1")
+        from ..semantics.pooling import POOLINGS
+
+        bad = [p for p in self.validity_poolings if p not in POOLINGS]
+        if bad or not self.validity_poolings:
+            raise ValidationError(
+                f"evaluate.validity_poolings: unknown {bad[0] if bad else 'empty list'!r} "
+                f"(valid: {', '.join(POOLINGS)})"
+            )
         if self.affinity_draws < 1:
             raise ValidationError("evaluate.affinity_draws must be >= 1")
         if not 0 < self.affinity_bin <= self.affinity_radius:
@@ -475,8 +485,41 @@ def _views_section(capture: Path, traj, metrics: dict, progress) -> Section:
     return Section("Views", body)
 
 
-def _temporal_section(smap, folder: Path, metrics: dict, labelled=None) -> Section:
-    """The paper's Table 1; over the labelled trajectories when ``labelled`` (M,) is given."""
+def _pooling_section(smap, labels, chosen: str, metrics: dict) -> Section:
+    """Which pooling the labels use, and what each pooling of the semantic map pools over."""
+    from ..semantics.pooling import POOLING_DESCRIPTIONS
+
+    metrics["semantics.label_pooling"] = chosen
+    metrics["semantics.poolings"] = list(smap.poolings)
+    who = (
+        "The labels (the graph cut) use"
+        if labels is not None
+        else "No labels yet; the semantic map's default (first) pooling is"
+    )
+    rows = ["| pooling | what it pools over |", "|---|---|"]
+    for p in smap.poolings:
+        rows.append(f"| {_pooling_cell(p, chosen)} | {POOLING_DESCRIPTIONS.get(p, p)} |")
+    body = "\n".join(
+        [
+            f"{who} **{chosen}** pooling (`[label] pooling`). The semantic map "
+            f"(`semantic_map.npz`, recogniser `{smap.recognizer}`, ε_e = {smap.eps_e:g}) holds "
+            "these poolings; the tables below show each, the labels' in bold:",
+            "",
+            *rows,
+        ]
+    )
+    return Section("Pooling", body)
+
+
+def _temporal_section(
+    smap, folder: Path, metrics: dict, labelled=None, chosen: str | None = None
+) -> Section:
+    """The paper's Table 1; over the labelled trajectories when ``labelled`` (M,) is given.
+
+    Every pooling of the map is shown beside the paper's (its ``view`` and ``average`` are the
+    paper's two; ``chosen``, the pooling the labels use, is marked), then whether view pooling
+    stays above the paper's average baseline at every lag, and the order of the others.
+    """
     fps = smap.fps
     lags = _temporal_lags(smap, fps)
     if not lags or not smap.samples:
@@ -486,20 +529,23 @@ def _temporal_section(smap, folder: Path, metrics: dict, labelled=None) -> Secti
             "needs at least 1 s).",
         )
     ours: dict[str, dict[int, tuple[float, float, int]]] = {}
+    means: dict[str, dict[str, float]] = {}
     body_rows = ["| pooling | " + " | ".join(n for n, _ in lags) + " |"]
     body_rows.append("|---|" + "---|" * len(lags))
     for p in smap.samples:
         row = []
-        ours[p] = {}
+        ours[p], means[p] = {}, {}
         for name, lag in lags:
             m, s, n = smap.temporal_consistency(lag, p, labelled)
             metrics[f"temporal_nc.{p}.{name}"] = m
+            metrics[f"temporal_nc.{p}.{name}.support"] = n
+            means[p][name] = m
             if labelled is not None:
                 metrics[f"temporal_nc_all.{p}.{name}"] = smap.temporal_consistency(lag, p)[0]
             row.append(f"{_fmt(m, 2)} ± {_fmt(s, 2)} (n={n})")
             if name.endswith("s") and name[:-1].isdigit():
                 ours[p][int(name[:-1])] = (m, s, n)
-        body_rows.append(f"| {p} | " + " | ".join(row) + " |")
+        body_rows.append(f"| {_pooling_cell(p, chosen)} | " + " | ".join(row) + " |")
     who = "sampled trajectories"
     if labelled is not None:
         who = (
@@ -514,15 +560,22 @@ def _temporal_section(smap, folder: Path, metrics: dict, labelled=None) -> Secti
         )
     text = [
         "NC between a trajectory's pooled confidences at its first frame and a lag later, "
-        f"averaged over the {who} that live that long (the paper's Table 1).",
+        f"averaged over the {who} that live that long (the paper's Table 1; n: trajectories).",
         "",
         *body_rows,
         "",
+        *_temporal_verdicts(means, [n for n, _ in lags], metrics),
     ]
     figures = []
-    paper_ours = {p: d for p, d in ours.items() if d and p in ("view", "average")}
+    paper_ours = {p: d for p, d in ours.items() if d}
     if paper_ours:
-        text += ["Beside the paper's Table 1:", "", temporal_table(paper_ours), ""]
+        text += [
+            "Beside the paper's Table 1 (its average pooling is our `average`: over every camera "
+            "in whose image the point falls):",
+            "",
+            temporal_table(paper_ours),
+            "",
+        ]
         plot_temporal(paper_ours, folder / "temporal.png")
         figures.append("temporal.png")
     else:
@@ -532,6 +585,59 @@ def _temporal_section(smap, folder: Path, metrics: dict, labelled=None) -> Secti
             "its average pooling about 0.43."
         )
     return Section("Temporal consistency of the 3D semantic map", "\n".join(text), figures)
+
+
+def _pooling_cell(p: str, chosen: str | None) -> str:
+    """A pooling's name in a table, marked when it is the one the labels use."""
+    return f"**{p}** (labels)" if p == chosen else p
+
+
+def _temporal_verdicts(means: dict[str, dict[str, float]], lags: list[str], metrics: dict):
+    """Lines: view against the paper's average baseline at every lag; the order of the others.
+
+    Adds ``temporal_nc.view_minus_average.min`` (the smallest margin over the lags).
+    """
+    lines = []
+    if "view" in means and "average" in means:
+        gap = {n: means["view"][n] - means["average"][n] for n in lags}
+        finite = {n: g for n, g in gap.items() if math.isfinite(g)}
+        if finite:
+            low = min(finite, key=finite.get)
+            metrics["temporal_nc.view_minus_average.min"] = finite[low]
+            below = [n for n, g in finite.items() if g <= 0]
+            if not below:
+                verdict = f"**yes**, by at least {finite[low]:.3f} (at {low})"
+            elif len(below) == len(finite):
+                verdict = f"**no**, below it at every lag, by up to {-finite[low]:.3f} (at {low})"
+            else:
+                verdict = (
+                    f"**no**: not at {', '.join(below)}; below it by up to {-finite[low]:.3f} "
+                    f"(at {low})"
+                )
+            lines.append(
+                "View pooling above the paper's average baseline (`average`, all cameras in "
+                f"whose image the point falls) at every lag: {verdict}."
+            )
+    trio = [p for p in ("view", "view_soft", "average_visible") if p in means]
+    if len(trio) > 1:
+        orders = []
+        for n in lags:
+            vals = {p: means[p][n] for p in trio if math.isfinite(means[p][n])}
+            ranked = sorted(vals, key=lambda p: -vals[p])
+            orders.append((n, " > ".join(f"{p} {_fmt(vals[p], 3)}" for p in ranked), tuple(ranked)))
+        if orders:
+            same = len({o[2] for o in orders}) == 1
+            lines.append(
+                "Order of "
+                + ", ".join(f"`{p}`" for p in trio)
+                + (
+                    f" at every lag: {' > '.join(orders[0][2])} (at {orders[0][0]}: "
+                    f"{orders[0][1]})."
+                    if same
+                    else " by lag: " + "; ".join(f"{n}: {o}" for n, o, _ in orders) + "."
+                )
+            )
+    return [x for line in lines for x in (line, "")]
 
 
 def _affinity_section(traj, labels_for_study, source: str, cfg, aff_cfg, folder, metrics):
@@ -592,7 +698,7 @@ def _affinity_section(traj, labels_for_study, source: str, cfg, aff_cfg, folder,
     return Section("Affinity effectiveness", body, ["affinity.png"])
 
 
-def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progress):
+def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progress, chosen=None):
     from ..semantics.recognizers import ImageContext
     from ..session import Capture
     from ..stages import make_stage_recognizer
@@ -645,7 +751,11 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
     rows = ["| cameras used | " + " | ".join(str(n) for n in counts) + " |"]
     rows.append("|---|" + "---|" * len(counts))
     for p, d in res.items():
-        rows.append(f"| {p} pooling | " + " | ".join(_fmt(d[n], 3) for n in counts) + " |")
+        rows.append(
+            f"| {_pooling_cell(p, chosen)} pooling | "
+            + " | ".join(_fmt(d[n], 3) for n in counts)
+            + " |"
+        )
         for n in counts:
             metrics[f"validity.{p}.{n}cams"] = d[n]
     sampled_pf, sampled_tracks = len(samples.track), len(np.unique(samples.track))
@@ -687,7 +797,8 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
             f"{cfg.validity_draws} random camera subsets per size). "
             "No ground truth is used. A sample is compared only where the held-out camera sees "
             "the point and its recogniser finds a class there, and every pooling labels the "
-            "trajectory: the last rows say how many were, a figure on few of them says little. "
+            "trajectory (so every pooling rests on the same samples): the last rows say how "
+            "many were, a figure on few of them says little. "
             f"With {counts[-1]} cameras: {top['point_frames']} point-frames of "
             f"{top['trajectories']} trajectories "
             f"(**{_fmt(100 * metrics['validity.support.share'], 1)} %** of those sampled).",
@@ -876,6 +987,12 @@ def evaluate_work(
     if gt:
         step = _tick(progress, "evaluate: true labels", traj.num_frames)
         truth, source = true_labels(cap, traj, progress=step)
+    if source == "ground truth":
+        notes.append(
+            "The trajectories are the capture's ground-truth trajectories (pipeline key "
+            '`trajectories = "ground_truth"`), not reconstructed ones: the figures measure the '
+            "semantic map, the affinity and the labelling alone."
+        )
     if gt and (smap is not None or labels is not None):
         sections.append(
             _ground_truth_section(cap, traj, truth, source, smap, labels, folder, metrics, progress)
@@ -890,11 +1007,14 @@ def evaluate_work(
             sections.append(section)
     if gt:
         sections.append(_views_section(cap, traj, metrics, progress))
+    chosen = None
     if smap is not None:
+        chosen = labels.pooling if labels is not None else smap.poolings[0]
+        sections.insert(1, _pooling_section(smap, labels, chosen, metrics))
         labelled = None
         if labels is not None and len(labels.labels) == smap.num_trajectories:
             labelled = labels.labels >= 0
-        sections.append(_temporal_section(smap, folder, metrics, labelled))
+        sections.append(_temporal_section(smap, folder, metrics, labelled, chosen))
     # Affinity study: ground-truth labels where there are some, else the graph cut's.
     study_labels, study_source = None, ""
     if truth is not None:
@@ -931,7 +1051,9 @@ def evaluate_work(
             )
         try:
             sections.append(
-                _validity_section(cap, traj, semantics_config, cfg, folder, metrics, progress)
+                _validity_section(
+                    cap, traj, semantics_config, cfg, folder, metrics, progress, chosen
+                )
             )
         except ValidationError as exc:
             notes.append(f"Predictive validity skipped: {exc}")
@@ -956,6 +1078,14 @@ def _people(cap, traj, labels, truth, metrics: dict) -> Section | None:
     people = person_classes(labels.class_names, kinds)
     persons = None if truth is None else true_instances(cap, traj, truth=truth)[0]
     return people_section(labels, people, persons, metrics)
+
+
+#: The poolings of the headline, in its order, with the names it gives them.
+HEADLINE_NAMES = {
+    "view": "view pooling",
+    "average": "average pooling over all cameras (the paper's)",
+    "average_visible": "average pooling over visible cameras",
+}
 
 
 def headline(metrics: dict[str, Any]) -> list[str]:
@@ -988,20 +1118,26 @@ def headline(metrics: dict[str, Any]) -> list[str]:
         f"{name} {_fmt(100 * m(f'gt.accuracy.{key}'), 1)} %"
         for key, name in (
             ("graphcut", "graph cut"),
-            ("view_argmax", "argmax view pooling"),
-            ("average_argmax", "argmax average pooling"),
+            *((f"{p}_argmax", f"argmax {HEADLINE_NAMES[p]}") for p in HEADLINE_NAMES),
         )
         if m(f"gt.accuracy.{key}") is not None
     ]
+    if m("semantics.label_pooling") is not None:
+        out.append(f"labels from: {m('semantics.label_pooling')} pooling")
     if acc:
         out.append("label accuracy: " + ", ".join(acc))
-    for p in ("view", "average"):
-        nc = [
-            (k.split(".", 2)[2], v) for k, v in metrics.items() if k.startswith(f"temporal_nc.{p}.")
-        ]
+    for p, name in HEADLINE_NAMES.items():
+        nc = sorted(
+            (
+                (k.split(".", 2)[2], v)
+                for k, v in metrics.items()
+                if k.startswith(f"temporal_nc.{p}.") and not k.endswith(".support")
+            ),
+            key=lambda item: float(item[0].rstrip("s")),  # metrics.json sorts 11s before 1s
+        )
         if nc:
             out.append(
-                f"temporal consistency, {p} pooling: "
+                f"temporal consistency, {name}: "
                 + ", ".join(f"{_fmt(v, 2)} at {lag}" for lag, v in nc)
             )
     counts = sorted(
@@ -1022,8 +1158,8 @@ def headline(metrics: dict[str, Any]) -> list[str]:
         out.append(
             f"predictive validity with {top} cameras: "
             + ", ".join(
-                f"{p} pooling {_fmt(m(f'validity.{p}.{top}cams'), 2)}"
-                for p in ("view", "average")
+                f"{name} {_fmt(m(f'validity.{p}.{top}cams'), 2)}"
+                for p, name in HEADLINE_NAMES.items()
                 if f"validity.{p}.{top}cams" in metrics
             )
             + support

@@ -15,6 +15,9 @@ paper69    69       1280x1024   600       two rings on a 1.6 m radius (just outs
                                           half a step; field of view 93.7 x 81.0 degrees
 paper69q   69       320x256     150       paper69's geometry at a quarter of its resolution
                                           (for affordable long runs, e.g. memory benchmarks)
+paper69t   69       160x128     75        paper69's geometry at an eighth of its resolution,
+                                          sampled at 10 Hz (the paper's 15 s Table 1 on
+                                          2 cores: ``pipelines/paper_table1.toml``)
 ring12     12       800x640     420       one ring, radius 2.5 m, heights alternating
                                           1.1 m / 2.0 m, aimed at (0, 0, 0.9);
                                           field of view 87.2 x 74.6 degrees
@@ -186,6 +189,15 @@ def _paper69q() -> CameraRig:
     return CameraRig(lower + upper)
 
 
+def _paper69t() -> CameraRig:
+    size, focal, radius = (160, 128), 75.0, 1.6
+    lower = ring_cameras(35, radius, 1.0, (0.0, 0.0, 0.9), size, focal)
+    upper = ring_cameras(
+        34, radius, 2.2, (0.0, 0.0, 1.1), size, focal, start_angle=math.pi / 34, first_index=35
+    )
+    return CameraRig(lower + upper)
+
+
 def _ring12() -> CameraRig:
     return CameraRig(ring_cameras(12, 2.5, [1.1, 2.0], (0.0, 0.0, 0.9), (800, 640), 420.0))
 
@@ -242,6 +254,13 @@ PRESETS: dict[str, RigPreset] = {
         "paper69 at a quarter of its resolution: 69 cameras, 320x256, f=150 px (the same "
         "fields of view and geometry), 30 Hz (for affordable long runs)",
         _paper69q,
+    ),
+    "paper69t": RigPreset(
+        "paper69 at an eighth of its resolution, sampled at 10 Hz: 69 cameras, 160x128, "
+        "f=75 px (the same fields of view and geometry; scene time is frame / fps, so the "
+        "motion is that of 30 Hz), for the paper's 15 s studies",
+        _paper69t,
+        fps=10.0,
     ),
     "ring12": RigPreset(
         "12 cameras, 800x640, f=420 px (FOV 87.2x74.6 deg), one ring of radius 2.5 m at "

@@ -74,6 +74,17 @@ def test_evaluate_writes_the_report(gt_work):
     lines = headline(saved)
     assert lines[0].startswith(f"trajectories: {metrics['trajectories.count']}")
     assert any(line.startswith("label accuracy: graph cut") for line in lines)
+    # Both averages: the paper's over all cameras in whose image the point falls, and ours
+    # over the visible cameras, in the validity study and the headline; the labels' pooling.
+    assert {"validity.average_visible.3cams", "gt.accuracy.average_visible_argmax"} <= set(metrics)
+    assert metrics["semantics.label_pooling"] == saved["semantics.label_pooling"] == "view"
+    assert "## Pooling" in index and "| **view** (labels) |" in index
+    assert "| **view** (labels) pooling |" in index  # predictive validity's row
+    assert "ground-truth trajectories" in index  # the report says what it measured
+    validity = next(line for line in lines if line.startswith("predictive validity"))
+    assert "average pooling over all cameras (the paper's)" in validity
+    assert "average pooling over visible cameras" in validity
+    assert any(line == "labels from: view pooling" for line in lines)
 
 
 def test_the_semantic_map_records_its_recogniser_options(gt_work):
@@ -154,3 +165,80 @@ def test_evaluate_command(gt_work):
     res = CliRunner().invoke(main, ["evaluate", str(work), "--validity-frames", "2"])
     assert res.exit_code == 0, res.output
     assert "label accuracy: graph cut" in res.output and "report:" in res.output
+
+
+def _fifteen_second_map(fps=2.0, tracks=6, seconds=15):
+    """A semantic map of trajectories living 15 s, with known pooled samples per pooling.
+
+    ``view`` keeps its first frame's class with a little jitter (NC near 1), ``average``
+    drifts to another class (NC -0.5), ``view_soft`` and ``average_visible`` in between.
+    """
+    from pointtraj.semantics.semantic_map import SemanticMap
+
+    T, K = int(seconds * fps) + 1, 3
+    rng = np.random.default_rng(0)
+    first = np.tile([[0.9, 0.05, 0.05]], (T, 1))
+    samples = {}
+    for p, mix in (("view", 0.1), ("view_soft", 0.2), ("average_visible", 0.3), ("average", 1)):
+        rows = []
+        for _ in range(tracks):
+            later = (1 - mix) * first + mix * np.array([0.05, 0.9, 0.05])
+            later[0] = first[0]
+            rows.append(later + rng.uniform(0, 0.01, (T, K)))
+        samples[p] = np.concatenate(rows).astype(np.float32)
+    M = tracks
+    return SemanticMap(
+        class_names=("a", "b", "c"),
+        L3D={p: np.zeros((M, K), np.float32) for p in samples},
+        count={p: np.full(M, T, np.int32) for p in samples},
+        sample_tracks=np.arange(M, dtype=np.int64),
+        sample_offsets=np.arange(M + 1, dtype=np.int64) * T,
+        sample_first_frame=np.zeros(M, np.int64),
+        samples=samples,
+        fps=fps,
+    )
+
+
+def test_temporal_section_has_the_paper_lags_and_columns(tmp_path):
+    from pointtraj.evaluate import paper
+    from pointtraj.evaluate.study import PAPER_SECONDS, _temporal_section
+
+    smap = _fifteen_second_map()
+    metrics = {}
+    section = _temporal_section(smap, tmp_path, metrics, None, chosen="view")
+    body = section.body
+    # Every lag of the paper's Table 1, 1 to 15 s, for every pooling, with its support.
+    assert "| pooling | " + " | ".join(f"{s}s" for s in PAPER_SECONDS) + " |" in body
+    for p in smap.poolings:
+        for s in PAPER_SECONDS:
+            assert metrics[f"temporal_nc.{p}.{s}s.support"] == 6
+            assert -1 <= metrics[f"temporal_nc.{p}.{s}s"] <= 1
+    assert metrics["temporal_nc.view.15s"] > 0.99 and metrics["temporal_nc.average.15s"] < 0
+    # The chosen pooling is marked; the paper's rows stand beside ours, at the same lags.
+    assert "| **view** (labels) |" in body
+    for name, d in paper.TEMPORAL_NC.items():
+        row = next(line for line in body.splitlines() if line.startswith(f"| paper, {name} |"))
+        assert row.count("|") == len(PAPER_SECONDS) + 2
+        assert f"{d[1][0]:.2f} ± {d[1][1]:.2f}" in row and f"{d[15][0]:.2f}" in row
+    for p in smap.poolings:
+        assert f"| ours, {p} |" in body
+    # The verdicts: view above the paper's average baseline at every lag, and the order.
+    assert "at every lag: **yes**" in body
+    assert metrics["temporal_nc.view_minus_average.min"] > 1.0
+    assert "at every lag: view > view_soft > average_visible" in body
+    assert (tmp_path / "temporal.png").stat().st_size > 1000
+
+
+def test_temporal_verdict_names_the_lags_where_view_falls_below():
+    from pointtraj.evaluate.study import _temporal_verdicts
+
+    means = {"view": {"1s": 0.9, "3s": 0.95}, "average": {"1s": 0.94, "3s": 0.9}}
+    metrics = {}
+    lines = _temporal_verdicts(means, ["1s", "3s"], metrics)
+    assert "**no**: not at 1s;" in lines[0] and lines[1] == ""  # a paragraph each
+    assert metrics["temporal_nc.view_minus_average.min"] == pytest.approx(-0.04)
+    means["view"]["3s"] = 0.8
+    assert "**no**, below it at every lag" in _temporal_verdicts(means, ["1s", "3s"], {})[0]
+    # The headline lists the lags in time order (metrics.json sorts "11s" before "1s").
+    nc = {f"temporal_nc.view.{s}s": s / 100 for s in (11, 1, 3)}
+    assert "view pooling: 0.01 at 1s, 0.03 at 3s, 0.11 at 11s" in "\n".join(headline(nc))

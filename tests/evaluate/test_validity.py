@@ -132,3 +132,21 @@ def test_collect_camera_samples_on_a_frame_cut():
         cut, rig, lambda c, t: np.ones((4, 4, 1), np.float32), 1, frame_stride=2
     )
     assert set(np.unique(s.frame)) == {24, 26}
+
+
+def test_the_visible_camera_average_beside_the_papers_average():
+    """``average_visible`` leaves the occluded cameras out, the paper's ``average`` keeps them;
+    both rest on the same samples as view pooling (the support)."""
+    s = occluded_samples()
+    support: dict = {}
+    both: dict = {}
+    pools = ("view", "average", "average_visible")
+    res = predictive_validity(
+        s, eps_e=0.1, poolings=pools, counts=[1, 11], draws=2, support=support
+    )
+    paper = predictive_validity(s, eps_e=0.1, counts=[1, 11], draws=2, support=both)
+    # Only visible cameras vote, and they all see the true class: always right.
+    assert res["average_visible"][11] == pytest.approx(1.0)
+    assert res["average"][11] == pytest.approx(paper["average"][11]) and res["average"][11] < 0.3
+    # It labels what view pooling labels, so adding it compares the same samples.
+    assert support == both and support[11]["comparisons"] > 0

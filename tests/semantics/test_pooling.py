@@ -160,3 +160,27 @@ def test_view_soft_keeps_the_medoid_robustness():
     assert (soft.argmax(axis=1) == 0).all() and (medoid.argmax(axis=1) == 0).all()
     assert soft[:, 1].max() < 0.3  # the outlying views hardly count
     assert soft[:, 0].std() < medoid[:, 0].std()
+
+
+def test_average_visible_is_the_unweighted_mean_of_the_visible_cameras():
+    L, V = random_case(4)
+    eps = 0.1
+    out = pool_views(L, V, eps, "average_visible")
+    for n in range(L.shape[1]):
+        use = V[n] > eps
+        if use.any():
+            np.testing.assert_allclose(out[n], L[use, n].mean(axis=0), rtol=1e-5)
+        else:
+            assert np.isnan(out[n]).all()
+    # With visibility 0 or 1 it is the visibility-weighted mean; the paper's average (every
+    # camera in whose image the point falls) also takes the cameras with V = 0.
+    V01 = (V > eps).astype(np.float32)
+    np.testing.assert_allclose(
+        pool_views(L, V01, eps, "weighted"), pool_views(L, V01, eps, "average_visible")
+    )
+    every = np.ones(L.shape[:2], bool)
+    some = V01.sum(axis=1) < L.shape[0]
+    assert not np.allclose(
+        pool_views(L, V01, eps, "average", in_image=every)[some & (V01.sum(1) > 0)],
+        out[some & (V01.sum(1) > 0)],
+    )

@@ -496,3 +496,58 @@ def test_person_votes_sample_the_person_masks(scene, tmp_path):
     assert stride > 1
     kept = tight.person_votes[:, 1] // len(rig)
     assert len(tight.person_votes) and (kept % stride == 0).all()
+
+
+class CameraClassRecognizer(Recognizer):
+    """Reports one class over the whole image of each camera: ``classes[camera index]``."""
+
+    name = "camera-class"
+    needs_image = False
+
+    def __init__(self, rig, classes):
+        self.rig, self.classes = rig, list(classes)
+        self.class_names = CLASSES
+
+    def recognize(self, image, context=None):
+        out = np.zeros((H // DS, W // DS, len(CLASSES)), np.float32)
+        out[..., self.classes[self.rig.index(context.camera)]] = 1.0
+        return out
+
+
+def test_all_camera_average_includes_occluded_cameras_and_visible_average_does_not():
+    """The paper's average (``average``) against ours over the visible cameras.
+
+    A point P at (0, 0, 1) is seen by cameras 0 and 3, hidden in camera 1 behind a point Q
+    0.4 m in front of it, and falls outside camera 2's image (in front of it, 72 degrees off
+    its axis). Each camera reports one class everywhere: 0, 1, 2, 0.
+    """
+    from pointtraj.camera import Camera, CameraRig
+
+    P, Q = (0.0, 0.0, 1.0), (0.0, 0.4, 1.0)
+    cams = [
+        Camera.look_at("cam0", (3.0, 0.0, 1.0), P, (W, H), 140.0),
+        Camera.look_at("cam1", (0.0, 3.0, 1.0), P, (W, H), 140.0),
+        Camera.look_at("cam2", (-3.0, 0.0, 1.0), (-2.0, 3.0, 1.0), (W, H), 140.0),
+        Camera.look_at("cam3", (0.0, -3.0, 1.0), P, (W, H), 140.0),
+    ]
+    rig = CameraRig(cams)
+    xyz = np.array([[P, P], [Q, Q]], float)  # (M=2, T=2, 3)
+    proj = rig.project(xyz[:, 0])
+    assert proj.in_image[:, 0].tolist() == [True, True, False, True]  # P outside camera 2
+    vis = np.zeros((2, 2, 4))
+    vis[0, :, [0, 3]] = 1.0  # P observed in cameras 0 and 3 only
+    vis[1, :, [1, 3]] = 1.0
+    traj = Trajectories.from_dense(xyz, vis, camera_names=rig.names, fps=30.0)
+    config = SemanticsConfig(poolings=("view", "average", "average_visible"))
+    # The occlusion test of geometric visibility finds P hidden in camera 1: V stays 0 there.
+    V = geometric_visibility(rig, xyz[:, 0], vis[:, 0], config)
+    assert V[0].tolist() == [1.0, 0.0, 0.0, 1.0]
+    rec = CameraClassRecognizer(rig, [0, 1, 2, 0])
+    smap = build_semantic_map(FakeCapture(rig), traj, rec, config=config)
+    # The paper's average: cameras 0, 1 (occluded: it sees Q there) and 3; not camera 2.
+    np.testing.assert_allclose(smap.L3D["average"][0], [2 / 3, 1 / 3, 0.0], atol=1e-6)
+    # The visible-camera average leaves the occluded camera out: cameras 0 and 3.
+    np.testing.assert_allclose(smap.L3D["average_visible"][0], [1.0, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(smap.L3D["view"][0], [1.0, 0.0, 0.0], atol=1e-6)
+    # Neither ever uses camera 2, where P is outside the image.
+    assert smap.L3D["average"][0, 2] == 0 and smap.L3D["average_visible"][0, 2] == 0
