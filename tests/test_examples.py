@@ -144,7 +144,9 @@ def test_sync_report(tmp_path):
 
 
 def test_fetch_example_errors(tmp_path):
-    with pytest.raises(ValidationError, match="valid names: pose2sim, pose2sim-multi, caliscope-board"):
+    with pytest.raises(
+        ValidationError, match="valid names: pose2sim, pose2sim-multi, caliscope-board"
+    ):
         fetch_example("nope", tmp_path / "x")
     with pytest.raises(ExampleNotFoundError, match="missing"):
         fetch_caliscope_board(tmp_path / "x", source=tmp_path)

@@ -25,9 +25,15 @@ from pointtraj.semantics.recognizers.simulated import (
 
 LABELS = LabelSet.default()
 SIDE = lateral_sides(LABELS.names)
-#: The correlated model with every error off: 1-pixel cells, no blur, peak 1.
+#: The correlated model with every error off: 1-pixel cells, no blur, peak 1, lengths in the
+#: test images' own pixels.
 CLEAN = dataclasses.replace(
-    NOISE_PRESETS["none"], downsample=1, p_flip_front=0.0, p_flip_side=0.0, p_flip_back=0.0
+    NOISE_PRESETS["none"],
+    downsample=1,
+    p_flip_front=0.0,
+    p_flip_side=0.0,
+    p_flip_back=0.0,
+    length_reference_px=0.0,
 )
 
 
@@ -303,6 +309,22 @@ def test_soft_boundaries_fall_off_with_the_distance_to_the_neighbour():
     for d in (1, 2, 4, 6):  # the forearm pixel d columns left of the hand's first column
         assert hand[48 - d] == pytest.approx(np.exp(-((d / 4.0) ** 2)), abs=0.03)
     assert L[lab < 0].max() == 0.0
+
+
+def test_lengths_scale_with_the_image():
+    """The same figure at twice the resolution gets a soft band twice as wide (in pixels), so
+    the same share of the figure; with length_reference_px = 0 the band stays in pixels."""
+    small = two_parts(64, 96)
+    big = np.repeat(np.repeat(small, 2, axis=0), 2, axis=1)
+    hand = LABELS.index("left_hand")
+
+    def band(lab, ref):
+        noise = dataclasses.replace(CLEAN, softness_px=4.0, length_reference_px=ref)
+        row = simulate_confidences(lab, LABELS.names, noise=noise)[lab.shape[0] // 2, :, hand]
+        return int(((row > 0.5) & (row < 0.999)).sum())
+
+    assert band(small, 96) >= 2 and band(big, 96) == 2 * band(small, 96)
+    assert band(big, 0) == band(small, 0)
 
 
 # -- the recogniser on a rendered capture ------------------------------------------------------

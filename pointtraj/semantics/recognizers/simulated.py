@@ -82,7 +82,8 @@ preset       front side  back  coupling soft   bound  swap  p_miss fp_rate noise
 ============ ===== ===== ===== ======== ====== ====== ===== ====== ======= ======= ==== ====
 
 (front, side, back: ``p_flip_front``, ``p_flip_side``, ``p_flip_back``; soft, bound:
-``softness_px``, ``boundary_px`` in image pixels; peak: ``peak_min``, to ``peak_max`` = 1; ds:
+``softness_px``, ``boundary_px`` in pixels of an image whose longer side is 640 pixels
+(``length_reference_px``; they scale with the image: twice as many pixels at 1280); peak: ``peak_min``, to ``peak_max`` = 1; ds:
 ``downsample``.) All have ``p_flip = p_neighbour = 0``, ``boundary_scale_px = 16``,
 ``blur_sigma = 1`` cell (1.5 in ``high``, 0 in ``none``) and ``hold_frames = 15``. Where the
 ``default`` values come from (``docs/recognizers.md`` has the measured table):
@@ -201,11 +202,17 @@ class SimulatedNoise:
         frame block (1: views flip together in order of their flip probability; 0: each view
         draws its own).
     softness_px : float
-        Fall-off length (image pixels) of each body part's confidence outside the part.
+        Fall-off length of each body part's confidence outside the part (pixels of an image
+        whose longer side is :data:`LENGTH_REFERENCE_PX`; scaled with the image).
     boundary_px : float
-        Largest shift (image pixels) of a boundary between neighbouring parts.
+        Largest shift of a boundary between neighbouring parts (pixels, likewise scaled).
     boundary_scale_px : float
-        Correlation length (image pixels) of the random boundary shift along the boundary.
+        Correlation length of the random boundary shift along the boundary (pixels, likewise).
+    length_reference_px : float
+        The image size (longer side, pixels) at which those three lengths are given; on
+        another image they scale with its longer side, as a real recogniser's errors do with
+        the image it is given (640: the demo's images, where they were measured). 0: they are
+        the image's own pixels, whatever its size.
 
     Notes
     -----
@@ -235,6 +242,7 @@ class SimulatedNoise:
     softness_px: float = 0.0
     boundary_px: float = 0.0
     boundary_scale_px: float = 16.0
+    length_reference_px: float = 640.0
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -264,6 +272,10 @@ class SimulatedNoise:
                 raise ValidationError(f"{f}: must be >= 0, got {getattr(self, f)}")
         if self.boundary_scale_px <= 0:
             raise ValidationError(f"boundary_scale_px: must be > 0, got {self.boundary_scale_px}")
+        if not self.length_reference_px >= 0:
+            raise ValidationError(
+                f"length_reference_px: must be >= 0, got {self.length_reference_px}"
+            )
         if self.model == "independent":
             used = [f for f in (*_CORRELATED_RATES, *_CORRELATED_LENGTHS) if getattr(self, f)]
             if used:
@@ -616,6 +628,21 @@ def _figure_flips(
     return flips
 
 
+def _at_image_size(noise: SimulatedNoise, H: int, W: int) -> SimulatedNoise:
+    """``noise`` with its lengths scaled from ``length_reference_px`` to an (H, W) image."""
+    if noise.length_reference_px == 0:
+        return noise
+    s = max(H, W) / noise.length_reference_px
+    if s == 1:
+        return noise
+    return dataclasses.replace(
+        noise,
+        softness_px=noise.softness_px * s,
+        boundary_px=noise.boundary_px * s,
+        boundary_scale_px=noise.boundary_scale_px * s,
+    )
+
+
 def _shift_boundaries(
     lab: np.ndarray,
     body: np.ndarray,
@@ -779,7 +806,7 @@ def simulate_confidences(
     soft = None
     if noise.correlated and (noise.boundary_px > 0 or noise.softness_px > 0):
         code, soft = _soft_boundaries(
-            code, (H, W), ~is_object, neighbours, noise, seed, camera, block
+            code, (H, W), ~is_object, neighbours, _at_image_size(noise, H, W), seed, camera, block
         )
     counts = np.bincount(cell * (K + 1) + code, minlength=h * w * (K + 1))
     per_cell = np.bincount(cell, minlength=h * w).astype(np.float32)
