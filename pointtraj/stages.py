@@ -88,6 +88,10 @@ class SynthConfig:
     points_per_part : int
         Ground-truth surface points per labelled part.
     image_format : {"jpg", "png"}
+    scale : float, optional
+        The scene's size against its human size (default: the preset's ``scene_scale``).
+    rig_scale : float
+        The rig's size against the preset's.
     """
 
     preset: str = "ring8"
@@ -96,6 +100,8 @@ class SynthConfig:
     seed: int = 0
     points_per_part: int = 300
     image_format: str = "jpg"
+    scale: float | None = None
+    rig_scale: float = 1.0
 
     def __post_init__(self) -> None:
         from .synth.presets import PRESETS
@@ -113,6 +119,8 @@ class SynthConfig:
             raise ValidationError("synth.frames and synth.points_per_part must be positive")
         if self.image_format not in ("jpg", "png"):
             raise ValidationError(f"synth.image_format: 'jpg' or 'png', got {self.image_format!r}")
+        if not ((self.scale is None or self.scale > 0) and self.rig_scale > 0):
+            raise ValidationError("synth.scale and synth.rig_scale must be positive")
 
 
 @dataclass(frozen=True)
@@ -202,6 +210,8 @@ def synthesize(
         seed=config.seed,
         points_per_part=config.points_per_part,
         image_format=config.image_format,
+        scale=config.scale,
+        rig_scale=config.rig_scale,
         on_frame=on_frame,
         executor=executor,
     )
@@ -430,6 +440,7 @@ def semantics_work(
     -------
     SemanticMap
     """
+    from .scale import scale_lengths, work_scene_scale
     from .semantics.semantic_map import build_semantic_map
     from .session import Capture
     from .trajectories import Trajectories
@@ -447,7 +458,7 @@ def semantics_work(
             cap,
             trajectories,
             recognizer,
-            config=cfg.semantics_config(),
+            config=scale_lengths(cfg.semantics_config(), work_scene_scale(wf), "[semantics]"),
             progress=progress,
             executor=executor,
         )
@@ -476,6 +487,7 @@ def affinity_work(
     AffinityGraph
     """
     from .affinity import compute_affinity, save_affinity
+    from .scale import scale_lengths, work_scene_scale
     from .trajectories import Trajectories
 
     wf = WorkFolder(work)
@@ -483,7 +495,7 @@ def affinity_work(
         trajectories = Trajectories.load(wf.trajectories)
         graph = compute_affinity(
             trajectories,
-            config or AffinityConfig(),
+            scale_lengths(config or AffinityConfig(), work_scene_scale(wf), "[affinity]"),
             progress=None if progress is None else lambda s, d, n: progress("affinity", d, n),
             executor=executor,
         )
@@ -668,7 +680,8 @@ def segments_work(
     """
     from .labelfile import load_labels
     from .labelset import LabelSet
-    from .segments import compute_segments, save_segments
+    from .scale import scale_lengths, work_scene_scale
+    from .segments import SegmentsConfig, compute_segments, save_segments
     from .trajectories import Trajectories
 
     wf = WorkFolder(work)
@@ -694,7 +707,7 @@ def segments_work(
             labels.labels,
             labelset,
             instance,
-            config,
+            scale_lengths(config or SegmentsConfig(), work_scene_scale(wf), "[segments]"),
             progress=None if progress is None else lambda d, n: progress("segments", d, n),
         )
         save_segments(segments, wf.segments)

@@ -56,6 +56,20 @@ def _summary_lines(summary) -> list[str]:
     show_default=True,
     help="Frame image format.",
 )
+@click.option(
+    "--scale",
+    type=float,
+    default=None,
+    help="The scene's size against its human size: geometry, motion, texture and ground truth "
+    "(default: the preset's, 0.004 for narrow7 and 1 for the others).",
+)
+@click.option(
+    "--rig-scale",
+    type=float,
+    default=1.0,
+    show_default=True,
+    help="The rig's size against the preset's (camera centres about its target).",
+)
 @click.option("--list", "list_", is_flag=True, help="List presets and scenes, then exit.")
 @executor_options
 def synth(
@@ -66,6 +80,8 @@ def synth(
     seed: int,
     points_per_part: int,
     image_format: str,
+    scale: float | None,
+    rig_scale: float,
     list_: bool,
     workers: int | None,
     scheduler: str | None,
@@ -100,6 +116,9 @@ def synth(
         raise click.BadParameter(
             f"must be at least 1, got {points_per_part}", param_hint="--points-per-part"
         )
+    for name, value in (("--scale", scale), ("--rig-scale", rig_scale)):
+        if value is not None and not value > 0:
+            raise click.BadParameter(f"must be positive, got {value}", param_hint=name)
     config = SynthConfig(
         preset=preset,
         scene=scene,
@@ -107,6 +126,8 @@ def synth(
         seed=seed,
         points_per_part=points_per_part,
         image_format=image_format,
+        scale=scale,
+        rig_scale=rig_scale,
     )
     label = f"rendering {scene} ({preset})"
     with open_cli_executor(executor_config(workers, scheduler)) as ex, progress_bars() as bars:

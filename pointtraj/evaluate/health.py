@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from ..scale import SceneLength
+
 __all__ = [
     "HealthThresholds",
     "VIEW_BINS",
@@ -85,7 +87,7 @@ class HealthThresholds:
     two_view_share: float = 0.5
     pairs_kept_share: float = 0.5
     camera_share: float = 0.01
-    below_floor_m: float = 0.05
+    below_floor_m: float = SceneLength(0.05)
     below_floor_share: float = 0.01
     labelled_share: float = 0.05
     labelled_per_frame: float = 20.0

@@ -470,6 +470,41 @@ class CaptureSummary:
         return self.seconds / self.rendered if self.rendered else float("nan")
 
 
+def synthetic_world(
+    preset: str,
+    scene: str,
+    seed: int = 0,
+    scale: float | None = None,
+    rig_scale: float = 1.0,
+) -> tuple[Any, Any]:
+    """The rig and the scene of a synthetic capture (the one place both are made).
+
+    Parameters
+    ----------
+    preset, scene : str
+    seed : int
+    scale : float, optional
+        The scene's size against its human size (default: the preset's ``scene_scale``, 1 but
+        for ``narrow7``); its stage centre is placed at the preset's target.
+    rig_scale : float
+        The rig's camera centres scaled about the preset's target (``narrow7`` with
+        ``scale = 1, rig_scale = 250`` is ``narrow7``'s capture at 250 times its size).
+
+    Returns
+    -------
+    rig : CameraRig
+    scene : Scene
+    """
+    from .presets import PRESETS, make_rig, scale_rig
+    from .scenes import make_scene, scale_scene
+
+    rig = make_rig(preset)  # refuses an unknown preset
+    spec = PRESETS[preset]
+    factor = spec.scene_scale if scale is None else float(scale)
+    rig = scale_rig(rig, rig_scale, spec.target)
+    return rig, scale_scene(make_scene(scene, seed), factor, spec.target)
+
+
 def render_capture(
     out: str | os.PathLike,
     *,
@@ -482,6 +517,8 @@ def render_capture(
     settings: RenderSettings | None = None,
     on_frame: Callable[[int, bool], None] | None = None,
     executor: Executor | None = None,
+    scale: float | None = None,
+    rig_scale: float = 1.0,
 ) -> CaptureSummary:
     """Render a synthetic capture folder with ground truth, streaming frame by frame.
 
@@ -512,6 +549,11 @@ def render_capture(
         Where the frames are rendered and written, one task a frame (default: here, with a
         writer thread). Every frame's noise is seeded by the frame and the camera, so the files
         are the same on any executor; on a cluster ``out`` must be a path the workers share.
+    scale : float, optional
+        The scene's size against its human size (default: the preset's ``scene_scale``);
+        geometry, motion, texture and ground truth are scaled (:func:`synthetic_world`).
+    rig_scale : float
+        The rig's size against the preset's (about its target).
 
     Returns
     -------
@@ -525,8 +567,7 @@ def render_capture(
     from ..labelset import LabelSet, body_joints
     from ..session import Capture
     from . import groundtruth as gtio
-    from .presets import PRESETS, make_rig
-    from .scenes import make_scene
+    from .presets import PRESETS
 
     if int(frames) != frames or frames < 1:
         raise ValidationError(f"frames must be a positive integer, got {frames!r}")
@@ -536,8 +577,7 @@ def render_capture(
         raise ValidationError(f"points_per_part must be positive, got {points_per_part}")
     frames = int(frames)
     start = time.perf_counter()
-    rig = make_rig(preset)
-    sc = make_scene(scene, seed)
+    rig, sc = synthetic_world(preset, scene, seed, scale, rig_scale)
     fps = PRESETS[preset].fps
     out = Path(out)
     params = {
@@ -547,6 +587,8 @@ def render_capture(
         "points_per_part": int(points_per_part),
         "image_format": image_format,
     }
+    if sc.scale != 1.0 or rig_scale != 1.0:  # recorded only when used: older captures match
+        params.update(scale=float(sc.scale), rig_scale=float(rig_scale))
     if out.exists() and not out.is_dir():
         raise ValidationError(f"{out} is a file; the output must be a folder")
     marker = out / "gt" / "synth.toml"
@@ -604,7 +646,16 @@ def render_capture(
     )
     rendered = skipped = 0
     if executor is not None and not executor.local:
-        job = _FrameJob(str(out), preset, scene, int(seed), int(points_per_part), image_format)
+        job = _FrameJob(
+            str(out),
+            preset,
+            scene,
+            int(seed),
+            int(points_per_part),
+            image_format,
+            sc.scale,
+            float(rig_scale),
+        )
         timings = RenderTimings()
         timings.extra.update(write=0.0, ground_truth=0.0)
         todo = []
@@ -704,7 +755,7 @@ def _render_frame(
         c = view.camera
         t0 = time.perf_counter()
         if free is None:
-            free = renderer.unoccluded(xyz)  # (M, C)
+            free = renderer.unoccluded(xyz, tolerance=0.002 * renderer.scene.scale)  # (M, C)
         visible[:, c] = gtio.visibility_exact(
             proj.pixels[c], proj.in_image[c] & free[:, c], points.geometry, view.geometry
         )
@@ -738,18 +789,18 @@ class _FrameJob:
     seed: int
     points_per_part: int
     image_format: str
+    scale: float = 1.0
+    rig_scale: float = 1.0
 
 
 def _frame_tools(job: _FrameJob, settings: RenderSettings | None) -> tuple[Any, ...]:
     """(rig, fps, ground-truth points, renderer, writable capture), made once per worker."""
     from ..session import Capture
     from . import groundtruth as gtio
-    from .presets import PRESETS, make_rig
-    from .scenes import make_scene
+    from .presets import PRESETS
 
     def make() -> tuple[Any, ...]:
-        rig = make_rig(job.preset)
-        sc = make_scene(job.scene, job.seed)
+        rig, sc = synthetic_world(job.preset, job.scene, job.seed, job.scale, job.rig_scale)
         fps = PRESETS[job.preset].fps
         points = gtio.sample_ground_truth_points(sc, job.points_per_part, job.seed)
         renderer = Renderer(sc, rig, seed=job.seed, settings=settings)
