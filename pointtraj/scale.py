@@ -157,7 +157,7 @@ def _fmt_length(m: float) -> str:
     m = float(m)
     if abs(m) >= 1.0:
         return f"{m:.3g} m"
-    if abs(m) >= 0.01:
+    if abs(m) >= 0.1:
         return f"{100 * m:.3g} cm"
     if abs(m) >= 1e-3:
         return f"{1000 * m:.3g} mm"

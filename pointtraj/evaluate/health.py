@@ -154,15 +154,28 @@ def known_floor(capture: str | os.PathLike) -> tuple[np.ndarray, float] | None:
     """The floor of a capture, where it is known.
 
     Only synthetic captures (``gt/synth.toml``) have a known floor: their world is z-up with the
-    floor at z = 0. A real rig's files name no floor, so none is assumed.
+    floor at z = 0 (a scaled scene's, ``pointtraj synth --scale``, where its stage centre's
+    scaling puts it). A real rig's files name no floor, so none is assumed.
 
     Returns
     -------
     (up (3,) float ndarray, height float) or None
     """
-    if (Path(capture) / "gt" / "synth.toml").is_file():
+    path = Path(capture) / "gt" / "synth.toml"
+    if not path.is_file():
+        return None
+    from ..synth.groundtruth import capture_scale
+
+    scale = capture_scale(capture)
+    if scale == 1.0:
         return np.array([0.0, 0.0, 1.0]), 0.0
-    return None
+    from ..config import load_toml
+    from ..synth.presets import PRESETS
+    from ..synth.scenes import STAGE_CENTRE
+
+    preset = PRESETS.get(str(load_toml(path).get("preset")))
+    target = STAGE_CENTRE if preset is None else preset.target
+    return np.array([0.0, 0.0, 1.0]), float(target[2] - scale * STAGE_CENTRE[2])
 
 
 def _share(num: float, den: float) -> float:

@@ -32,7 +32,9 @@ narrow7    7        1280x1024   21556     a narrow-field rig for a subject a few
                                           at the origin: 6 cameras on a ring 40 degrees
                                           above it and 1 above it, all 11.8 cm away;
                                           field of view 3.4 x 2.7 degrees (each camera
-                                          sees about 7 x 5.6 mm at the subject)
+                                          sees about 7 x 5.6 mm at the subject); its
+                                          scenes are scaled by 0.004 (a 7.2 mm figure
+                                          whose stage centre is at the origin)
 =========  =======  ==========  ========  =============================================
 
 The synthetic scenes are human-sized; a preset's ``scene_scale`` scales them to its rig
