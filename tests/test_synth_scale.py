@@ -62,6 +62,7 @@ def test_narrow7_gets_a_scene_that_fills_its_view():
 def test_a_scaled_capture_reconstructs_like_its_human_sized_original(tmp_path: Path):
     """tiny4 and tiny4 at 0.004 of its size (scene and rig): the defaults follow the scale,
     so both give about as many points, with the same error relative to the scene's size."""
+    from pointtraj.evaluate.health import known_floor
     from pointtraj.stages import SynthConfig, reconstruct_work, synthesize
 
     runs = {}
@@ -73,6 +74,8 @@ def test_a_scaled_capture_reconstructs_like_its_human_sized_original(tmp_path: P
         assert gtio.capture_scale(cap) == f
         depth = gtio.load_depth_map(cap, "cam00", 0)
         assert np.nanmax(depth) < 10 * f  # metres, at the scene's scale
+        # the floor moves with the scene: z = 0.9 - 0.9 f about the stage centre at 0.9 m
+        assert known_floor(cap)[1] == pytest.approx(0.9 - 0.9 * f)
         traj = reconstruct_work(tmp_path / f"work_{name}", cap)
         xyz = [traj.frame(t).xyz for t in range(2)]
         runs[name] = (traj.num_trajectories, xyz, cap)

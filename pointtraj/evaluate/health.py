@@ -164,18 +164,16 @@ def known_floor(capture: str | os.PathLike) -> tuple[np.ndarray, float] | None:
     path = Path(capture) / "gt" / "synth.toml"
     if not path.is_file():
         return None
-    from ..synth.groundtruth import capture_scale
-
-    scale = capture_scale(capture)
-    if scale == 1.0:
-        return np.array([0.0, 0.0, 1.0]), 0.0
     from ..config import load_toml
     from ..synth.presets import PRESETS
     from ..synth.scenes import STAGE_CENTRE
 
-    preset = PRESETS.get(str(load_toml(path).get("preset")))
-    target = STAGE_CENTRE if preset is None else preset.target
-    return np.array([0.0, 0.0, 1.0]), float(target[2] - scale * STAGE_CENTRE[2])
+    doc = load_toml(path)
+    preset = PRESETS.get(str(doc.get("preset")))
+    if "scale" not in doc or preset is None:  # the scene where it was made: floor at z = 0
+        return np.array([0.0, 0.0, 1.0]), 0.0
+    scale = float(doc["scale"])
+    return np.array([0.0, 0.0, 1.0]), float(preset.target[2] - scale * STAGE_CENTRE[2])
 
 
 def _share(num: float, den: float) -> float:

@@ -568,6 +568,7 @@ def render_capture(
     from ..session import Capture
     from . import groundtruth as gtio
     from .presets import PRESETS
+    from .scenes import STAGE_CENTRE
 
     if int(frames) != frames or frames < 1:
         raise ValidationError(f"frames must be a positive integer, got {frames!r}")
@@ -587,7 +588,8 @@ def render_capture(
         "points_per_part": int(points_per_part),
         "image_format": image_format,
     }
-    if sc.scale != 1.0 or rig_scale != 1.0:  # recorded only when used: older captures match
+    moved = tuple(PRESETS[preset].target) != STAGE_CENTRE  # the scene is placed at the target
+    if sc.scale != 1.0 or rig_scale != 1.0 or moved:  # only then: older captures still match
         params.update(scale=float(sc.scale), rig_scale=float(rig_scale))
     if out.exists() and not out.is_dir():
         raise ValidationError(f"{out} is a file; the output must be a folder")
