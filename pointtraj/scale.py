@@ -279,6 +279,14 @@ def work_scene_scale(work: Any) -> SceneScale:
     wf = work if isinstance(work, WorkFolder) else WorkFolder(work)
     capture = wf.capture_path()
     if capture is None or not capture.is_dir():
+        if capture is not None and ("missing", str(capture)) not in _logged:
+            _logged.add(("missing", str(capture)))
+            logger.warning(
+                "scene scale: the capture %s that %s records is not there; lengths at their "
+                "human-scale defaults",
+                capture,
+                wf.work_toml,
+            )
         return SceneScale(1.0, float("nan"), np.full((2, 3), np.nan), "no capture")
     params = wf.run_identity().get("reconstruct")
     volume = params.get("capture_volume") if isinstance(params, dict) else None

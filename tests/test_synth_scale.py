@@ -63,7 +63,8 @@ def test_a_scaled_capture_reconstructs_like_its_human_sized_original(tmp_path: P
     """tiny4 and tiny4 at 0.004 of its size (scene and rig): the defaults follow the scale,
     so both give about as many points, with the same error relative to the scene's size."""
     from pointtraj.evaluate.health import known_floor
-    from pointtraj.stages import SynthConfig, reconstruct_work, synthesize
+    from pointtraj.scale import work_scene_scale
+    from pointtraj.stages import SynthConfig, affinity_work, reconstruct_work, synthesize
 
     runs = {}
     for name, f in (("human", 1.0), ("small", F)):
@@ -77,6 +78,12 @@ def test_a_scaled_capture_reconstructs_like_its_human_sized_original(tmp_path: P
         # the floor moves with the scene: z = 0.9 - 0.9 f about the stage centre at 0.9 m
         assert known_floor(cap)[1] == pytest.approx(0.9 - 0.9 * f)
         traj = reconstruct_work(tmp_path / f"work_{name}", cap)
+        # the later stages take the work folder's scale: the affinity's lengths follow it
+        factor = work_scene_scale(tmp_path / f"work_{name}").factor
+        assert (factor == 1.0) if f == 1.0 else (0.003 < factor < 0.006)
+        graph = affinity_work(tmp_path / f"work_{name}")
+        assert graph.params["epsilon"] == pytest.approx(0.05 * factor)
+        assert graph.params["tau"] == pytest.approx(0.005 * factor)
         xyz = [traj.frame(t).xyz for t in range(2)]
         runs[name] = (traj.num_trajectories, xyz, cap)
     n_h, n_s = runs["human"][0], runs["small"][0]
