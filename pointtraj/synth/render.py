@@ -35,6 +35,7 @@ from .scenes import Scene
 
 __all__ = [
     "RenderSettings",
+    "synthetic_world",
     "RenderedView",
     "Renderer",
     "RenderTimings",
