@@ -232,6 +232,32 @@ def pairwise_distance_change(traj, tracks: np.ndarray, max_pairs: int, seed: int
     return np.nanmax(np.abs(D - d0[:, None]), axis=1), np.sum(shared, axis=1)
 
 
+def lagged_distance_change(traj, tracks: np.ndarray, lag: int, max_pairs: int, seed: int = 0):
+    """Board rigidity at a fixed lag, apart from how long the trajectories live.
+
+    Returns ``(change, verified)``: ``|d_ij(t + lag) - d_ij(t)|`` over every pair of ``tracks``
+    and frame where both exist at both times (the maximum over the shared lifetime, of
+    :func:`pairwise_distance_change`, grows with it), and per value whether both trajectories
+    are seen by 3 cameras or more on average (V > 0.05) over their lives.
+    """
+    from pointtraj.trajectories import dequantize_visibility
+
+    rng = np.random.default_rng(seed)
+    views = (dequantize_visibility(traj.visibility) > 0.05).sum(axis=1)
+    mean_views = np.bincount(traj.row_track, weights=views, minlength=traj.num_trajectories)
+    three = (mean_views / np.maximum(traj.lengths, 1))[tracks] >= 3
+    X = traj.dense_positions(tracks).astype(np.float64)  # (Mb, T, 3)
+    i, j = np.triu_indices(len(tracks), k=1)
+    if len(i) > max_pairs:
+        pick = rng.choice(len(i), max_pairs, replace=False)
+        i, j = i[pick], j[pick]
+    D = np.linalg.norm(X[i] - X[j], axis=2)  # (Q, T)
+    d = np.abs(D[:, lag:] - D[:, :-lag])
+    ok = np.isfinite(d)
+    both = np.broadcast_to((three[i] & three[j])[:, None], d.shape)
+    return d[ok], both[ok]
+
+
 def make_caliscope_capture(data_dir: Path, capture: Path) -> None:
     """A capture folder for caliscope's board recording: rig.toml plus symlinked videos."""
     from pointtraj.rigio.caliscope import load_caliscope
@@ -274,6 +300,7 @@ def evaluate_board(data_dir: Path, traj, args) -> dict:
     def q(a, p):
         return float(np.percentile(a, p)) if len(a) else float("nan")
 
+    lagged, verified = lagged_distance_change(traj, board, 3, args.max_pairs)
     return {
         "frames_with_corners": len(corners),
         "board_point_frames": int(len(rows)),
@@ -283,6 +310,13 @@ def evaluate_board(data_dir: Path, traj, args) -> dict:
         "pair_shared_frames_median": q(shared, 50),
         "pairwise_distance_change_median_m": q(change, 50),
         "pairwise_distance_change_p90_m": q(change, 90),
+        "lag3_change_median_m": q(lagged, 50),
+        "lag3_change_p90_m": q(lagged, 90),
+        "lag3_verified_share": float(np.mean(verified)) if len(verified) else float("nan"),
+        "lag3_change_verified_median_m": q(lagged[verified], 50),
+        "lag3_change_verified_p90_m": q(lagged[verified], 90),
+        "lag3_change_two_view_median_m": q(lagged[~verified], 50),
+        "lag3_change_two_view_p90_m": q(lagged[~verified], 90),
         "residual_to_corner_plane_median_m": q(np.abs(residual), 50),
         "residual_to_corner_plane_p90_m": q(np.abs(residual), 90),
         "residual_to_fitted_plane_median_m": q(fit_res, 50),

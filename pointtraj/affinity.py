@@ -52,6 +52,7 @@ from .atomic import save_npz_atomic
 from .errors import FileFormatError, ValidationError, check_array
 from .executor import Executor, SerialExecutor
 from .geometry import fit_rigid, rotation_from_triads, squared_norm
+from .scale import SceneLength
 from .trajectories import Trajectories
 
 __all__ = [
@@ -134,16 +135,16 @@ class AffinityConfig:
         Seed of the drop-out and RANSAC sampling.
     """
 
-    epsilon: float = 0.05
-    epsilon_a: float = 0.30
-    tau: float = 0.005
+    epsilon: float = SceneLength(0.05)
+    epsilon_a: float = SceneLength(0.30)
+    tau: float = SceneLength(0.005)
     near_neighbors: int = 8
     rigid_neighbors: int = 12
     max_neighbors: int = 8
-    distance_scale: float = 0.10
+    distance_scale: float = SceneLength(0.10)
     missing_affinity: float = 1.0
     ransac_iterations: int = 8
-    ransac_threshold: float = 0.01
+    ransac_threshold: float = SceneLength(0.01)
     min_inliers: int = 2
     mode: Literal["step", "accumulated"] = "accumulated"
     symmetrize: Literal["mean", "max", "min"] = "mean"

@@ -40,6 +40,7 @@ import numpy as np
 
 from .errors import FileFormatError, ValidationError, check_array
 from .geometry import ransac_rigid_groups
+from .scale import SceneLength
 
 if TYPE_CHECKING:
     from .labelset import LabelSet
@@ -117,7 +118,7 @@ class SegmentsConfig:
         Seed of the RANSAC samples.
     """
 
-    ransac_threshold: float = 0.02
+    ransac_threshold: float = SceneLength(0.02)
     ransac_iterations: int = 64
     refinements: int = 2
     min_points: int = 8
@@ -125,7 +126,7 @@ class SegmentsConfig:
     min_rotation_deg: float = 3.0
     hinge_centres: bool = True
     prior_deg: float = 1.0
-    max_uncertainty: float = 0.02
+    max_uncertainty: float = SceneLength(0.02)
     classes: str = "body"
     seed: int = 0
 

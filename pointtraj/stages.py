@@ -98,6 +98,10 @@ class SynthConfig:
         With ``rig``: the rig's up direction (``"auto"``, ``"+z"``, ``"-y"``, ...).
     fps : float, optional
         Frame rate (default: the preset's; 30 with ``rig``).
+    scale : float, optional
+        The scene's size against its human size (default: the preset's ``scene_scale``).
+    rig_scale : float
+        The rig's size against the preset's.
     """
 
     preset: str = "ring8"
@@ -110,6 +114,8 @@ class SynthConfig:
     at: tuple[float, float, float] | None = None
     up: str = "auto"
     fps: float | None = None
+    scale: float | None = None
+    rig_scale: float = 1.0
 
     def __post_init__(self) -> None:
         from .synth.presets import PRESETS
@@ -133,6 +139,8 @@ class SynthConfig:
             )
         if self.fps is not None and not (self.fps > 0):
             raise ValidationError(f"synth.fps must be positive, got {self.fps!r}")
+        if not ((self.scale is None or self.scale > 0) and self.rig_scale > 0):
+            raise ValidationError("synth.scale and synth.rig_scale must be positive")
 
 
 @dataclass(frozen=True)
@@ -240,6 +248,8 @@ def synthesize(
         seed=config.seed,
         points_per_part=config.points_per_part,
         image_format=config.image_format,
+        scale=config.scale,
+        rig_scale=config.rig_scale,
         on_frame=on_frame,
         executor=executor,
     )
@@ -468,6 +478,7 @@ def semantics_work(
     -------
     SemanticMap
     """
+    from .scale import scale_lengths, work_scene_scale
     from .semantics.semantic_map import build_semantic_map
     from .session import Capture
     from .trajectories import Trajectories
@@ -485,7 +496,7 @@ def semantics_work(
             cap,
             trajectories,
             recognizer,
-            config=cfg.semantics_config(),
+            config=scale_lengths(cfg.semantics_config(), work_scene_scale(wf), "[semantics]"),
             progress=progress,
             executor=executor,
         )
@@ -514,6 +525,7 @@ def affinity_work(
     AffinityGraph
     """
     from .affinity import compute_affinity, save_affinity
+    from .scale import scale_lengths, work_scene_scale
     from .trajectories import Trajectories
 
     wf = WorkFolder(work)
@@ -521,7 +533,7 @@ def affinity_work(
         trajectories = Trajectories.load(wf.trajectories)
         graph = compute_affinity(
             trajectories,
-            config or AffinityConfig(),
+            scale_lengths(config or AffinityConfig(), work_scene_scale(wf), "[affinity]"),
             progress=None if progress is None else lambda s, d, n: progress("affinity", d, n),
             executor=executor,
         )
@@ -706,7 +718,8 @@ def segments_work(
     """
     from .labelfile import load_labels
     from .labelset import LabelSet
-    from .segments import compute_segments, save_segments
+    from .scale import scale_lengths, work_scene_scale
+    from .segments import SegmentsConfig, compute_segments, save_segments
     from .trajectories import Trajectories
 
     wf = WorkFolder(work)
@@ -732,7 +745,7 @@ def segments_work(
             labels.labels,
             labelset,
             instance,
-            config,
+            scale_lengths(config or SegmentsConfig(), work_scene_scale(wf), "[segments]"),
             progress=None if progress is None else lambda d, n: progress("segments", d, n),
         )
         save_segments(segments, wf.segments)

@@ -99,8 +99,10 @@ def info(path: str, voxel: float, radius: float, height: float, out: str | None)
     click.echo(coverage.report())
     if len(cams) > 1:  # the volume the reconstruction matches camera pairs in
         from ..reconstruct.connectivity import common_view
+        from ..scale import scene_scale
 
         click.echo(common_view(cams).summary())
+        click.echo(scene_scale(cams, log=False).summary())
     if out is not None:
         png = Path(out) / "rig_coverage.png"
         png.parent.mkdir(parents=True, exist_ok=True)

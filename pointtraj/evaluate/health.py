@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from ..scale import SceneLength
+
 __all__ = [
     "HealthThresholds",
     "VIEW_BINS",
@@ -85,7 +87,7 @@ class HealthThresholds:
     two_view_share: float = 0.5
     pairs_kept_share: float = 0.5
     camera_share: float = 0.01
-    below_floor_m: float = 0.05
+    below_floor_m: float = SceneLength(0.05)
     below_floor_share: float = 0.01
     labelled_share: float = 0.05
     labelled_per_frame: float = 20.0
@@ -152,15 +154,26 @@ def known_floor(capture: str | os.PathLike) -> tuple[np.ndarray, float] | None:
     """The floor of a capture, where it is known.
 
     Only synthetic captures (``gt/synth.toml``) have a known floor: their world is z-up with the
-    floor at z = 0. A real rig's files name no floor, so none is assumed.
+    floor at z = 0 (a scaled scene's, ``pointtraj synth --scale``, where its stage centre's
+    scaling puts it). A real rig's files name no floor, so none is assumed.
 
     Returns
     -------
     (up (3,) float ndarray, height float) or None
     """
-    if (Path(capture) / "gt" / "synth.toml").is_file():
+    path = Path(capture) / "gt" / "synth.toml"
+    if not path.is_file():
+        return None
+    from ..config import load_toml
+    from ..synth.presets import PRESETS
+    from ..synth.scenes import STAGE_CENTRE
+
+    doc = load_toml(path)
+    preset = PRESETS.get(str(doc.get("preset")))
+    if "scale" not in doc or preset is None:  # the scene where it was made: floor at z = 0
         return np.array([0.0, 0.0, 1.0]), 0.0
-    return None
+    scale = float(doc["scale"])
+    return np.array([0.0, 0.0, 1.0]), float(preset.target[2] - scale * STAGE_CENTRE[2])
 
 
 def _share(num: float, den: float) -> float:

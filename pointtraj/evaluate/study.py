@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FileFormatError, ValidationError
+from ..scale import SceneLength, scale_lengths, work_scene_scale
 from ..workdir import WorkFolder, locked
 from . import paper
 from .report import (
@@ -88,10 +89,10 @@ class EvaluateConfig:
     validity_frames: int = 30
     validity_draws: int = 3
     validity_poolings: tuple[str, ...] = ("view", "view_soft", "average", "average_visible")
-    affinity_radius: float = 1.0
+    affinity_radius: float = SceneLength(1.0)
     affinity_draws: int = 16
     affinity_threshold: float = 0.5
-    affinity_bin: float = 0.1
+    affinity_bin: float = SceneLength(0.1)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -435,12 +436,16 @@ def _views_section(capture: Path, traj, metrics: dict, progress) -> Section:
     Adds ``gt.views.<key>`` and ``gt.views.<key>.support`` for the keys of :data:`VIEW_KEYS`.
     """
     from ..reconstruct.config import ReconstructConfig
+    from ..synth.groundtruth import capture_scale
     from .views import view_audit
 
     step = _tick(progress, "evaluate: view audit", traj.num_frames)
+    k = capture_scale(capture)  # a scaled synthetic scene: its tolerances scale with it
     audit = view_audit(
         capture,
         traj,
+        radius=0.03 * k,
+        depth_tol=0.01 * k,
         visibility_threshold=ReconstructConfig().visibility_threshold,
         progress=step,
         errors=False,
@@ -831,7 +836,7 @@ def _health_section(wf: WorkFolder, cap: Path, traj, labels, metrics: dict) -> S
     from ..session import Capture
     from .health import HealthThresholds, check_health, health_warnings, known_floor
 
-    th = HealthThresholds()
+    th = scale_lengths(HealthThresholds(), work_scene_scale(wf), "[health]")
     rig = Capture.open(cap).rig.subset(traj.camera_names)
     rc = _reconstruct_config(wf)
     metrics.update(check_health(traj, rig, cap, rc, labels, th))
@@ -961,10 +966,11 @@ def evaluate_work(
     from ..trajectories import Trajectories
     from .groundtruth import has_ground_truth, true_labels
 
-    cfg = config or EvaluateConfig()
     wf = WorkFolder(work)
     if not wf.trajectories.is_file():
         raise FileFormatError(wf.trajectories, "no such file (run `pointtraj reconstruct` first)")
+    scale = work_scene_scale(wf)
+    cfg = scale_lengths(config or EvaluateConfig(), scale, "[evaluate]")
     cap = wf.require_capture(capture)
     folder = wf.report
     folder.mkdir(parents=True, exist_ok=True)
@@ -1037,7 +1043,7 @@ def evaluate_work(
                 study_labels,
                 study_source,
                 cfg,
-                affinity_config or AffinityConfig(),
+                affinity_config or scale_lengths(AffinityConfig(), scale, "[affinity]"),
                 folder,
                 metrics,
             )
@@ -1049,6 +1055,7 @@ def evaluate_work(
                 options=dict(smap.recognizer_options),
                 eps_e=smap.eps_e,
             )
+        semantics_config = scale_lengths(semantics_config, scale, "[semantics]")
         try:
             sections.append(
                 _validity_section(

@@ -11,6 +11,7 @@ import numpy as np
 from ..camera import CameraRig
 from ..errors import ValidationError
 from ..geometry import axis_angles
+from ..scale import SceneLength
 from .densify import DensifyConfig
 from .matching import MatchingConfig
 from .stitch import StitchConfig
@@ -202,9 +203,9 @@ class ReconstructConfig:
     cover_px: float = 3.0
     cover_views: int = 2
     cover_visible: str = "auto"
-    occlusion_depth_m: float = 0.05
+    occlusion_depth_m: float = SceneLength(0.05)
     occlusion_sigmas: float = 0.0
-    occlusion_min_m: float = 0.01
+    occlusion_min_m: float = SceneLength(0.01)
     occlusion_cell_px: float = 8.0
     max_angle_deg: float = 90.0
     capture_volume: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
@@ -217,7 +218,7 @@ class ReconstructConfig:
     seed: int = 0
     chunk_frames: int = 100
     chunk_overlap: int = 5
-    chunk_join_m: float = 0.005
+    chunk_join_m: float = SceneLength(0.005)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     views: ViewsConfig = field(default_factory=ViewsConfig)
@@ -302,6 +303,9 @@ class ReconstructConfig:
     def for_rig(self, rig: CameraRig, *, log: bool = True) -> ReconstructConfig:
         """This config with the settings left out chosen from the rig, and the choice logged.
 
+        Every length left at its default (:class:`~pointtraj.scale.SceneLength`: the depth
+        ranges, occlusion tolerances, ``chunk_join_m``, the stitch and survive radii) follows
+        the rig's scale (:func:`pointtraj.scale.scene_scale`: unchanged on human-sized rigs).
         ``matching.guided``, ``matching.gms_threshold`` and ``densify.enabled`` left out (None)
         are chosen from the rig's baselines and resolution (:func:`rig_choices`), and
         ``cover_visible = "auto"`` from its camera count; set ones are kept. The choice is
@@ -318,22 +322,27 @@ class ReconstructConfig:
         ReconstructConfig
             With no setting left to the rig (unchanged when none was).
         """
-        m, d = self.matching, self.densify
+        from ..scale import scale_lengths, scene_scale
+
+        cfg = scale_lengths(
+            self, scene_scale(rig, self.capture_volume, log=log), "[reconstruct]", log=log
+        )
+        m, d = cfg.matching, cfg.densify
         if (
             m.guided is not None
             and m.gms_threshold is not None
             and d.enabled is not None
-            and self.cover_visible != "auto"
+            and cfg.cover_visible != "auto"
         ):
-            return self
+            return cfg
         from .views import retry_periods
 
         choice = rig_choices(rig)
         guided = choice.guided if m.guided is None else m.guided
         gms = choice.gms_threshold if m.gms_threshold is None else m.gms_threshold
         densify = choice.densify if d.enabled is None else d.enabled
-        every = retry_periods(self.views, len(rig))[0]
-        cover = self.cover_visible
+        every = retry_periods(cfg.views, len(rig))[0]
+        cover = cfg.cover_visible
         if cover == "auto":
             cover = "on" if every > 1 else "off"
         if log:
@@ -349,12 +358,12 @@ class ReconstructConfig:
                 how("on" if guided else "off", m.guided),
                 how(f"{gms:g}", m.gms_threshold),
                 how("on" if densify else "off", d.enabled),
-                how(cover, None if self.cover_visible == "auto" else cover),
+                how(cover, None if cfg.cover_visible == "auto" else cover),
                 every,
                 "" if every == 1 else "s",
             )
         return replace(
-            self,
+            cfg,
             cover_visible=cover,
             matching=replace(m, guided=guided, gms_threshold=gms),
             densify=replace(d, enabled=densify),

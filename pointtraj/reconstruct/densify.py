@@ -43,6 +43,7 @@ import numpy as np
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
 from ..geometry import axis_angles
+from ..scale import SceneLength
 
 logger = logging.getLogger(__name__)
 
@@ -120,7 +121,7 @@ class DensifyConfig:
     enabled: bool | None = None
     step_px: float = 6.0
     radius_px: float = 24.0
-    depth_range_m: float = 0.08
+    depth_range_m: float = SceneLength(0.08)
     depth_steps: int = 33
     patch_size: int = 7
     patch_spacing_px: float = 2.0

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ValidationError
+from ..scale import SceneLength
 from ..trajectories import Trajectories
 
 __all__ = ["StitchConfig", "stitch_trajectories"]
@@ -52,7 +53,7 @@ class StitchConfig:
 
     enabled: bool = True
     max_gap: int = 2
-    radius_m: float = 0.015
+    radius_m: float = SceneLength(0.015)
     speed_factor: float = 0.5
     max_color_diff: float = 40.0
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
+from ..scale import SceneLength
 
 if TYPE_CHECKING:
     from ..trajectories import Trajectories
@@ -62,10 +63,10 @@ class SurviveConfig:
     """
 
     frames: int = 3
-    radius_m: float = 0.15
+    radius_m: float = SceneLength(0.15)
     neighbors: int = 8
     min_neighbors: int = 4
-    max_fit_m: float = 0.01
+    max_fit_m: float = SceneLength(0.01)
     max_px: float = 0.0
 
     def __post_init__(self) -> None:

@@ -37,6 +37,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
+from ..scale import SceneLength
 from .densify import _ncc, _rays, _sample, _zscore
 
 __all__ = [
@@ -129,8 +130,8 @@ class ViewsConfig:
     patch_spacing_px: float = 2.0
     depth_steps: int = 9
     depth_sigmas: float = 3.0
-    min_depth_range_m: float = 0.01
-    max_depth_range_m: float = 0.08
+    min_depth_range_m: float = SceneLength(0.01)
+    max_depth_range_m: float = SceneLength(0.08)
     max_incidence_deg: float = 80.0
     normal_neighbors: int = 12
     retry_every: int = 0

@@ -36,6 +36,7 @@ import numpy as np
 from ..atomic import save_npz_atomic
 from ..errors import FileFormatError, ValidationError, check_array
 from ..executor import Executor, SerialExecutor
+from ..scale import SceneLength
 from ..trajectories import Trajectories
 from .pooling import POOLINGS, pool_views
 from .recognizers import RecognizerSpec
@@ -119,7 +120,7 @@ class SemanticsConfig:
     seed: int = 0
     visibility: Literal["geometric", "observed"] = "geometric"
     unobserved_visibility: float = 0.5
-    occlusion_depth_m: float = 0.05
+    occlusion_depth_m: float = SceneLength(0.05)
     occlusion_cell_px: float = 8.0
     background_vote: float = 0.0
     person_budget_mb: float = 256.0

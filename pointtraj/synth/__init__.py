@@ -12,9 +12,9 @@ from .groundtruth import (
     load_ground_truth,
     load_label_map,
 )
-from .presets import PRESETS, make_rig
-from .render import CaptureSummary, Renderer, RenderSettings, render_capture
-from .scenes import SCENES, Scene, make_scene
+from .presets import PRESETS, make_rig, scale_rig
+from .render import CaptureSummary, Renderer, RenderSettings, render_capture, synthetic_world
+from .scenes import SCENES, Scene, make_scene, scale_scene
 
 __all__ = [
     "GroundTruth",
@@ -26,6 +26,9 @@ __all__ = [
     "SCENES",
     "Scene",
     "make_scene",
+    "scale_scene",
+    "scale_rig",
+    "synthetic_world",
     "Renderer",
     "RenderSettings",
     "CaptureSummary",

@@ -30,6 +30,8 @@ from ..npzfile import load_npz
 from ..trajectories import Trajectories, quantize_visibility
 
 __all__ = [
+    "capture_scale",
+    "depth_unit",
     "GroundTruth",
     "GroundTruthPoints",
     "SegmentTruth",
@@ -381,18 +383,48 @@ def load_instance_map(capture_dir: str | os.PathLike, camera: str, frame: int) -
     return _load_index_map(instance_map_path(capture_dir, camera, frame))
 
 
+def capture_scale(capture_dir: str | os.PathLike) -> float:
+    """The scene scale of a synthetic capture (``gt/synth.toml`` ``scale``; 1 when absent).
+
+    A scaled scene's depth maps are in units of ``scale`` millimetres, and the ground truth's
+    tolerances (visibility, the view audit's) are scaled by it.
+    """
+    path = Path(capture_dir) / "gt" / "synth.toml"
+    try:
+        mtime = path.stat().st_mtime_ns
+    except OSError:
+        return 1.0
+    key = (str(path.resolve()), mtime)
+    if key not in _SCALES:
+        from ..config import load_toml
+
+        _SCALES[key] = float(load_toml(path).get("scale", 1.0))
+    return _SCALES[key]
+
+
+_SCALES: dict[tuple[str, int], float] = {}
+
+
+def depth_unit(capture_dir: str | os.PathLike) -> float:
+    """Metres per count of the capture's depth maps: 1 mm times :func:`capture_scale`."""
+    return 0.001 * capture_scale(capture_dir)
+
+
 def save_depth_map(capture_dir: str | os.PathLike, camera: str, frame: int, depth) -> Path:
-    """Write ``gt/depth/<camera>/<frame:06d>.png`` (uint16 millimetres, 0 = no hit).
+    """Write ``gt/depth/<camera>/<frame:06d>.png`` (uint16 in :func:`depth_unit`: millimetres
+    for a human-sized scene; 0 = no hit).
 
     Parameters
     ----------
     depth : (H, W) float ndarray
-        Metres, NaN where nothing is hit; clipped to [0.001, 65.535] m.
+        Metres, NaN where nothing is hit; clipped to [1, 65535] units.
     """
     d = np.asarray(depth, np.float64)
     if d.ndim != 2:
         raise ValidationError(f"depth: expected shape (H, W), got {d.shape}")
-    mm = np.where(np.isfinite(d), np.clip(np.rint(d * 1000.0), 1, 65535), 0).astype(np.uint16)
+    unit = depth_unit(capture_dir)
+    per = 1000.0 if unit == 0.001 else 1.0 / unit  # the human-scale case exactly as before
+    mm = np.where(np.isfinite(d), np.clip(np.rint(d * per), 1, 65535), 0).astype(np.uint16)
     path = _map_path(capture_dir, "depth", camera, frame)
     _write_png(path, mm)
     return path
@@ -439,7 +471,8 @@ def load_depth_map(capture_dir: str | os.PathLike, camera: str, frame: int) -> n
     Returns
     -------
     (H, W) float32 ndarray
-        Camera-frame z in metres (1 mm resolution), NaN where nothing is hit.
+        Camera-frame z in metres (:func:`depth_unit` resolution: 1 mm on a human-sized scene),
+        NaN where nothing is hit.
 
     Raises
     ------
@@ -447,7 +480,7 @@ def load_depth_map(capture_dir: str | os.PathLike, camera: str, frame: int) -> n
         If the map is missing or not a uint16 PNG.
     """
     mm = _read_png(_map_path(capture_dir, "depth", camera, frame), np.uint16)
-    out = mm.astype(np.float32) * np.float32(0.001)
+    out = mm.astype(np.float32) * np.float32(depth_unit(capture_dir))
     out[mm == 0] = np.nan
     return out
 
@@ -710,7 +743,7 @@ def segment_ground_truth(capture_dir: str | os.PathLike) -> SegmentTruth:
     """
     from ..config import load_toml
     from ..labelset import BODY_JOINTS
-    from .scenes import make_scene
+    from .scenes import make_scene, scale_scene
 
     path = Path(capture_dir) / "gt" / "synth.toml"
     doc = load_toml(path)
@@ -718,6 +751,11 @@ def segment_ground_truth(capture_dir: str | os.PathLike) -> SegmentTruth:
     if missing:
         raise FileFormatError(path, f"missing key {missing[0]!r}")
     scene = make_scene(str(doc["scene"]), int(doc["seed"]))
+    if "scale" in doc:  # a scaled scene (pointtraj synth --scale), at the preset's target
+        from .presets import PRESETS
+
+        target = PRESETS[str(doc["preset"])].target
+        scene = scale_scene(scene, float(doc["scale"]), target)
     T, fps = int(doc["frames"]), float(doc["fps"])
     parts = np.flatnonzero(
         [g.label >= 0 and scene.class_kinds[g.label] == "body" for g in scene.geometries]

@@ -35,11 +35,14 @@ narrow7    7        1280x1024   21556     a narrow-field rig for a subject a few
                                           at the origin: 6 cameras on a ring 40 degrees
                                           above it and 1 above it, all 11.8 cm away;
                                           field of view 3.4 x 2.7 degrees (each camera
-                                          sees about 7 x 5.6 mm at the subject)
+                                          sees about 7 x 5.6 mm at the subject); its
+                                          scenes are scaled by 0.004 (a 7.2 mm figure
+                                          whose stage centre is at the origin)
 =========  =======  ==========  ========  =============================================
 
-The synthetic scenes are human-sized: ``narrow7`` is for the rig-derived defaults (camera
-pairs, capture volume, matching choices); no scene is scaled to it.
+The synthetic scenes are human-sized; a preset's ``scene_scale`` scales them to its rig
+(``narrow7``: 0.004, a 7.2 mm figure), and ``pointtraj synth --scale`` / ``--rig-scale``
+change the scene's and the rig's size (:func:`~.render.synthetic_world`).
 
 Camera names are ``cam00``, ``cam01``, ... in ring order (the lower ring first for ``paper69``).
 """
@@ -55,6 +58,7 @@ import numpy as np
 
 from ..camera import Camera, CameraRig
 from ..errors import ValidationError
+from .scenes import STAGE_CENTRE
 
 __all__ = [
     "PRESETS",
@@ -62,15 +66,12 @@ __all__ = [
     "make_rig",
     "ring_cameras",
     "field_of_view",
+    "scale_rig",
     "twin_rig",
     "axes_meeting_point",
 ]
 
 logger = logging.getLogger(__name__)
-
-
-#: The synthetic scenes' centre (metres): the figure stands on ``z = 0`` around it.
-STAGE_CENTRE: tuple[float, float, float] = (0.0, 0.0, 0.9)
 
 
 @dataclass(frozen=True)
@@ -86,13 +87,18 @@ class RigPreset:
     fps : float
         Frame rate of captures made with this rig.
     target : (3,) tuple of float
-        The stage centre, which every camera must see (metres).
+        The stage centre, which every camera must see (metres); a scene's stage centre is
+        placed there.
+    scene_scale : float
+        The size of the scenes rendered with this rig against their human size (the default
+        of ``pointtraj synth --scale``; :func:`~.scenes.scale_scene`).
     """
 
     description: str
     build: Callable[[], CameraRig]
     fps: float = 30.0
     target: tuple[float, float, float] = (0.0, 0.0, 0.9)
+    scene_scale: float = 1.0
 
 
 def field_of_view(size: tuple[int, int], focal: float) -> tuple[float, float]:
@@ -225,6 +231,11 @@ def _lab4() -> CameraRig:
 NARROW_FOCAL = 640.0 / math.tan(math.radians(1.7))
 
 
+#: The scene scale of ``narrow7``: the 1.8 m figure becomes 7.2 mm tall, filling the 7 x 5.6 mm
+#: that each camera sees.
+NARROW_SCENE_SCALE = 0.004
+
+
 def _narrow7() -> CameraRig:
     distance, elevation = 0.118, math.radians(40.0)
     cams = []
@@ -284,12 +295,40 @@ PRESETS: dict[str, RigPreset] = {
     ),
     "narrow7": RigPreset(
         "7 cameras, 1280x1024, f=21556 px (FOV 3.4x2.7 deg), 11.8 cm from a subject a few mm "
-        "across at the origin: 6 on a ring 40 degrees above it, 1 above it, 30 Hz (no scene "
-        "is scaled to it)",
+        "across at the origin: 6 on a ring 40 degrees above it, 1 above it, 30 Hz (scenes at "
+        "0.004 of their size: a 7 mm figure)",
         _narrow7,
         target=(0.0, 0.0, 0.0),
+        scene_scale=NARROW_SCENE_SCALE,
     ),
 }
+
+
+def scale_rig(rig: CameraRig, factor: float, centre: tuple[float, float, float]) -> CameraRig:
+    """The rig with its camera centres scaled by ``factor`` about ``centre`` (same images).
+
+    Parameters
+    ----------
+    rig : CameraRig
+    factor : float
+        Positive.
+    centre : (3,) tuple of float
+
+    Returns
+    -------
+    CameraRig
+        ``rig`` itself when ``factor`` is 1.
+    """
+    f = float(factor)
+    if not (f > 0 and math.isfinite(f)):
+        raise ValidationError(f"rig scale must be a positive number, got {factor!r}")
+    if f == 1.0:
+        return rig
+    c = np.asarray(centre, float)
+    return CameraRig(
+        Camera(cam.name, cam.K, cam.R, c + f * (np.asarray(cam.C) - c), cam.size, cam.dist)
+        for cam in rig
+    )
 
 
 def make_rig(name: str) -> CameraRig:

@@ -35,6 +35,7 @@ from .scenes import Scene
 
 __all__ = [
     "RenderSettings",
+    "synthetic_world",
     "RenderedView",
     "Renderer",
     "RenderTimings",
@@ -470,6 +471,41 @@ class CaptureSummary:
         return self.seconds / self.rendered if self.rendered else float("nan")
 
 
+def synthetic_world(
+    preset: str,
+    scene: str,
+    seed: int = 0,
+    scale: float | None = None,
+    rig_scale: float = 1.0,
+) -> tuple[Any, Any]:
+    """The rig and the scene of a synthetic capture (the one place both are made).
+
+    Parameters
+    ----------
+    preset, scene : str
+    seed : int
+    scale : float, optional
+        The scene's size against its human size (default: the preset's ``scene_scale``, 1 but
+        for ``narrow7``); its stage centre is placed at the preset's target.
+    rig_scale : float
+        The rig's camera centres scaled about the preset's target (``narrow7`` with
+        ``scale = 1, rig_scale = 250`` is ``narrow7``'s capture at 250 times its size).
+
+    Returns
+    -------
+    rig : CameraRig
+    scene : Scene
+    """
+    from .presets import PRESETS, make_rig, scale_rig
+    from .scenes import make_scene, scale_scene
+
+    rig = make_rig(preset)  # refuses an unknown preset
+    spec = PRESETS[preset]
+    factor = spec.scene_scale if scale is None else float(scale)
+    rig = scale_rig(rig, rig_scale, spec.target)
+    return rig, scale_scene(make_scene(scene, seed), factor, spec.target)
+
+
 def render_capture(
     out: str | os.PathLike,
     *,
@@ -484,6 +520,8 @@ def render_capture(
     executor: Executor | None = None,
     rig: CameraRig | None = None,
     fps: float | None = None,
+    scale: float | None = None,
+    rig_scale: float = 1.0,
 ) -> CaptureSummary:
     """Render a synthetic capture folder with ground truth, streaming frame by frame.
 
@@ -520,6 +558,11 @@ def render_capture(
         them in ``gt/synth.toml``.
     fps : float, optional
         Frame rate (default: the preset's, or 30 with ``rig``).
+    scale : float, optional
+        The scene's size against its human size (default: the preset's ``scene_scale``);
+        geometry, motion, texture and ground truth are scaled (:func:`synthetic_world`).
+    rig_scale : float
+        The rig's size against the preset's (about its target).
 
     Returns
     -------
@@ -533,8 +576,8 @@ def render_capture(
     from ..labelset import LabelSet, body_joints
     from ..session import Capture
     from . import groundtruth as gtio
-    from .presets import PRESETS, make_rig
-    from .scenes import make_scene
+    from .presets import PRESETS
+    from .scenes import STAGE_CENTRE, make_scene, scale_scene
 
     if int(frames) != frames or frames < 1:
         raise ValidationError(f"frames must be a positive integer, got {frames!r}")
@@ -547,9 +590,12 @@ def render_capture(
     twin = rig is not None
     if fps is not None and not (np.isfinite(fps) and fps > 0):
         raise ValidationError(f"fps must be a positive number, got {fps!r}")
-    if not twin:
-        rig = make_rig(preset)
-    sc = make_scene(scene, seed)
+    if twin:
+        if rig_scale != 1.0:
+            raise ValidationError("rig_scale applies to a preset's rig, not to a given rig")
+        sc = scale_scene(make_scene(scene, seed), 1.0 if scale is None else float(scale))
+    else:
+        rig, sc = synthetic_world(preset, scene, seed, scale, rig_scale)
     fps = float(fps) if fps is not None else (30.0 if twin else PRESETS[preset].fps)
     out = Path(out)
     params = {
@@ -561,6 +607,12 @@ def render_capture(
     }
     if twin:  # the same capture only with the same cameras
         params["rig_digest"] = _rig_digest(rig)
+        if sc.scale != 1.0:
+            params["scale"] = float(sc.scale)
+    else:
+        moved = tuple(PRESETS[preset].target) != STAGE_CENTRE  # the scene is placed at the target
+        if sc.scale != 1.0 or rig_scale != 1.0 or moved:  # only then: older captures still match
+            params.update(scale=float(sc.scale), rig_scale=float(rig_scale))
     if out.exists() and not out.is_dir():
         raise ValidationError(f"{out} is a file; the output must be a folder")
     marker = out / "gt" / "synth.toml"
@@ -619,7 +671,16 @@ def render_capture(
     rendered = skipped = 0
     if executor is not None and not executor.local:
         job = _FrameJob(
-            str(out), preset, scene, int(seed), int(points_per_part), image_format, fps, twin
+            str(out),
+            preset,
+            scene,
+            int(seed),
+            int(points_per_part),
+            image_format,
+            sc.scale,
+            float(rig_scale),
+            fps,
+            twin,
         )
         timings = RenderTimings()
         timings.extra.update(write=0.0, ground_truth=0.0)
@@ -720,7 +781,7 @@ def _render_frame(
         c = view.camera
         t0 = time.perf_counter()
         if free is None:
-            free = renderer.unoccluded(xyz)  # (M, C)
+            free = renderer.unoccluded(xyz, tolerance=0.002 * renderer.scene.scale)  # (M, C)
         visible[:, c] = gtio.visibility_exact(
             proj.pixels[c], proj.in_image[c] & free[:, c], points.geometry, view.geometry
         )
@@ -754,8 +815,10 @@ class _FrameJob:
     seed: int
     points_per_part: int
     image_format: str
-    fps: float
-    twin: bool  # cameras from the capture's rig.toml, not the preset
+    scale: float = 1.0
+    rig_scale: float = 1.0
+    fps: float = 30.0
+    twin: bool = False  # cameras from the capture's rig.toml, not the preset
 
 
 def _rig_digest(rig: CameraRig) -> str:
@@ -775,12 +838,14 @@ def _frame_tools(job: _FrameJob, settings: RenderSettings | None) -> tuple[Any, 
     from ..rigio import load_rig
     from ..session import Capture
     from . import groundtruth as gtio
-    from .presets import make_rig
-    from .scenes import make_scene
+    from .scenes import make_scene, scale_scene
 
     def make() -> tuple[Any, ...]:
-        rig = load_rig(Path(job.out) / "rig.toml") if job.twin else make_rig(job.preset)
-        sc = make_scene(job.scene, job.seed)
+        if job.twin:
+            rig = load_rig(Path(job.out) / "rig.toml")
+            sc = scale_scene(make_scene(job.scene, job.seed), job.scale)
+        else:
+            rig, sc = synthetic_world(job.preset, job.scene, job.seed, job.scale, job.rig_scale)
         fps = job.fps
         points = gtio.sample_ground_truth_points(sc, job.points_per_part, job.seed)
         renderer = Renderer(sc, rig, seed=job.seed, settings=settings)

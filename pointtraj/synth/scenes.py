@@ -39,7 +39,20 @@ from .figure import (
 from .objects import BallPath, PartMesh, make_box, make_ellipsoid, make_quad
 from .texture import SolidTexture, make_solid_texture
 
-__all__ = ["Geometry", "Scene", "SceneSpec", "SCENES", "make_scene", "CLASS_COLORS"]
+__all__ = [
+    "Geometry",
+    "Scene",
+    "SceneSpec",
+    "SCENES",
+    "STAGE_CENTRE",
+    "make_scene",
+    "scale_scene",
+    "CLASS_COLORS",
+]
+
+#: The centre of the registered scenes' stage (metres; floor at z = 0): what
+#: :func:`scale_scene` scales about.
+STAGE_CENTRE = (0.0, 0.0, 0.9)
 
 logger = logging.getLogger(__name__)
 
@@ -103,7 +116,11 @@ class Geometry:
     texture_seed : int
         Seed of its texture.
     texture_voxel, texture_scale : float
-        See :func:`make_solid_texture`.
+        See :func:`make_solid_texture` (at the human size).
+    size : float
+        The mesh's size against its human-sized original (:func:`scale_scene`): the texture
+        is the original's, its voxels ``size`` times as large, so that a scaled part looks
+        exactly as the original does.
     """
 
     name: str
@@ -114,19 +131,25 @@ class Geometry:
     texture_seed: int
     texture_voxel: float = 0.004
     texture_scale: float = 1.0
+    size: float = 1.0
 
     @cached_property
     def texture(self) -> SolidTexture:
         """The baked solid texture (built on first use)."""
         lo, hi = self.mesh.bounds
-        return make_solid_texture(
-            lo,
-            hi,
+        tex = make_solid_texture(
+            lo / self.size,
+            hi / self.size,
             self.base_color,
             np.random.default_rng(self.texture_seed),
             voxel=self.texture_voxel,
             scale=self.texture_scale,
         )
+        if self.size != 1.0:
+            tex = SolidTexture(
+                origin=tex.origin * self.size, voxel=tex.voxel * self.size, volume=tex.volume
+            )
+        return tex
 
 
 @dataclass(eq=False)
@@ -145,8 +168,11 @@ class Scene:
         ``pose_fn(t) -> (G, 4, 4)`` local-to-world matrices at time ``t`` seconds.
     seed : int
     extras : dict
-        Scene-specific objects, e.g. ``"ball"``: the :class:`BallPath` of ``dribble``, and
-        ``"recognizers"``: recogniser output name -> class mappings for ``labels.toml``.
+        Scene-specific objects, e.g. ``"ball"``: the :class:`BallPath` of ``dribble`` (at the
+        scene's human size), and ``"recognizers"``: recogniser output name -> class mappings
+        for ``labels.toml``.
+    scale : float
+        Size against the human-sized original (:func:`scale_scene`; 1 for a registered scene).
     """
 
     name: str
@@ -156,6 +182,7 @@ class Scene:
     pose_fn: Callable[[float], np.ndarray] = field(repr=False)
     seed: int = 0
     extras: dict[str, object] = field(default_factory=dict)
+    scale: float = 1.0
 
     @property
     def class_colors(self) -> np.ndarray:
@@ -384,3 +411,70 @@ def make_scene(name: str, seed: int = 0) -> Scene:
     if name not in SCENES:
         raise ValidationError(f"unknown scene {name!r}; choose one of {', '.join(sorted(SCENES))}")
     return SCENES[name].build(int(seed))
+
+
+def scale_scene(
+    scene: Scene,
+    factor: float,
+    target: tuple[float, float, float] = STAGE_CENTRE,
+    centre: tuple[float, float, float] = STAGE_CENTRE,
+) -> Scene:
+    """The scene scaled by ``factor`` about ``centre``, which moves to ``target``.
+
+    Geometry, motion and texture are all scaled: every mesh's vertices, the poses'
+    translations (``x' = target + factor * (x - centre)``; rotations, and so the motion's
+    timing, are unchanged) and each texture's voxel and feature sizes, so that the images of a
+    scaled scene seen by a rig scaled by the same factor are those of the original. Ground
+    truth sampled from it (:func:`~.groundtruth.sample_ground_truth_points`) is the original's
+    times ``factor``.
+
+    Parameters
+    ----------
+    scene : Scene
+    factor : float
+        Positive.
+    target, centre : (3,) tuple of float
+        Metres.
+
+    Returns
+    -------
+    Scene
+        With ``scale`` multiplied by ``factor``; ``scene`` itself when nothing changes.
+    """
+    f = float(factor)
+    if not (f > 0 and math.isfinite(f)):
+        raise ValidationError(f"scene scale must be a positive number, got {factor!r}")
+    c, tgt = np.asarray(centre, float), np.asarray(target, float)
+    if f == 1.0 and np.array_equal(c, tgt):
+        return scene
+    geoms = [
+        Geometry(
+            name=g.name,
+            mesh=PartMesh(g.mesh.vertices * f, g.mesh.triangles, g.mesh.normals),
+            label=g.label,
+            instance=g.instance,
+            base_color=g.base_color,
+            texture_seed=g.texture_seed,
+            texture_voxel=g.texture_voxel,
+            texture_scale=g.texture_scale,
+            size=g.size * f,
+        )
+        for g in scene.geometries
+    ]
+    pose_fn = scene.pose_fn
+
+    def poses(t: float) -> np.ndarray:
+        P = np.array(pose_fn(t), dtype=np.float64, copy=True)  # (G, 4, 4)
+        P[:, :3, 3] = tgt + f * (P[:, :3, 3] - c)
+        return P
+
+    return Scene(
+        scene.name,
+        list(scene.class_names),
+        list(scene.class_kinds),
+        geoms,
+        poses,
+        scene.seed,
+        dict(scene.extras),
+        scene.scale * f,
+    )
