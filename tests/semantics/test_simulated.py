@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from helpers import labelmaps
 
 from pointtraj.errors import FileFormatError, ValidationError
 from pointtraj.labelset import LabelSet
@@ -25,15 +26,7 @@ NONE = INDEPENDENT_PRESETS["none"]  # the independent model: 8-pixel cells, no n
 
 def figure_map(H=96, W=128):
     """A label map with a torso, both hands and forearms, and a ball (a disc)."""
-    lab = np.full((H, W), -1, np.int16)
-    lab[20:70, 50:78] = LABELS.index("torso")
-    lab[20:60, 30:50] = LABELS.index("left_forearm")
-    lab[60:80, 30:50] = LABELS.index("left_hand")
-    lab[20:60, 78:98] = LABELS.index("right_forearm")
-    lab[60:80, 78:98] = LABELS.index("right_hand")
-    v, u = np.mgrid[0:H, 0:W]
-    lab[(u - 110) ** 2 + (v - 80) ** 2 < 100] = LABELS.index("ball")
-    return lab
+    return labelmaps.figure_map(LABELS, H, W)
 
 
 def test_noise_free_output_is_the_area_averaged_one_hot_map():

@@ -8,6 +8,7 @@ import logging
 
 import numpy as np
 import pytest
+from helpers import labelmaps
 
 from pointtraj.errors import ValidationError
 from pointtraj.labelset import LabelSet
@@ -39,15 +40,7 @@ CLEAN = dataclasses.replace(
 
 def figure_map(H=96, W=128):
     """A torso, both forearms and hands (the figure of test_simulated.py), and a ball."""
-    lab = np.full((H, W), -1, np.int16)
-    lab[20:70, 50:78] = LABELS.index("torso")
-    lab[20:60, 30:50] = LABELS.index("left_forearm")
-    lab[60:80, 30:50] = LABELS.index("left_hand")
-    lab[20:60, 78:98] = LABELS.index("right_forearm")
-    lab[60:80, 78:98] = LABELS.index("right_hand")
-    v, u = np.mgrid[0:H, 0:W]
-    lab[(u - 110) ** 2 + (v - 80) ** 2 < 100] = LABELS.index("ball")
-    return lab
+    return labelmaps.figure_map(LABELS, H, W)
 
 
 def mirrored_share(L2D, lab):
