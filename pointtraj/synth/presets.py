@@ -177,31 +177,27 @@ def ring_cameras(
     return cams
 
 
-def _paper69() -> CameraRig:
-    size, focal, radius = (1280, 1024), 600.0, 1.6
+def _paper69_at(size: tuple[int, int], focal: float) -> CameraRig:
+    """paper69's two rings with another image size and focal length (the same fields of view
+    when both are scaled together)."""
+    radius = 1.6
     lower = ring_cameras(35, radius, 1.0, (0.0, 0.0, 0.9), size, focal)
     upper = ring_cameras(
         34, radius, 2.2, (0.0, 0.0, 1.1), size, focal, start_angle=math.pi / 34, first_index=35
     )
     return CameraRig(lower + upper)
+
+
+def _paper69() -> CameraRig:
+    return _paper69_at((1280, 1024), 600.0)
 
 
 def _paper69q() -> CameraRig:
-    size, focal, radius = (320, 256), 150.0, 1.6
-    lower = ring_cameras(35, radius, 1.0, (0.0, 0.0, 0.9), size, focal)
-    upper = ring_cameras(
-        34, radius, 2.2, (0.0, 0.0, 1.1), size, focal, start_angle=math.pi / 34, first_index=35
-    )
-    return CameraRig(lower + upper)
+    return _paper69_at((320, 256), 150.0)
 
 
 def _paper69t() -> CameraRig:
-    size, focal, radius = (160, 128), 75.0, 1.6
-    lower = ring_cameras(35, radius, 1.0, (0.0, 0.0, 0.9), size, focal)
-    upper = ring_cameras(
-        34, radius, 2.2, (0.0, 0.0, 1.1), size, focal, start_angle=math.pi / 34, first_index=35
-    )
-    return CameraRig(lower + upper)
+    return _paper69_at((160, 128), 75.0)
 
 
 def _ring12() -> CameraRig:
