@@ -66,7 +66,11 @@ def test_human_sized_rigs_keep_every_length_exactly(preset):
     assert scale_lengths(AffinityConfig(), scale) == AffinityConfig()
 
 
-def test_a_small_rig_scales_every_length_default_and_logs_them(caplog):
+def test_a_small_rig_scales_every_length_default_and_logs_them(caplog, monkeypatch):
+    import pointtraj.scale
+
+    # Each line is logged once per process: an earlier test may have logged these already.
+    monkeypatch.setattr(pointtraj.scale, "_logged", set())
     rig = make_rig("narrow7")
     with caplog.at_level("INFO", logger="pointtraj.scale"):
         scale = scene_scale(rig, log=True)
