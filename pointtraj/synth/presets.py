@@ -382,7 +382,7 @@ def axes_meeting_point(rig: CameraRig) -> np.ndarray:
 
     Examples
     --------
-    >>> np.round(axes_meeting_point(make_rig("ring8")), 6).tolist()
+    >>> (np.round(axes_meeting_point(make_rig("ring8")), 6) + 0.0).tolist()  # + 0.0: no -0.0
     [0.0, 0.0, 0.85]
     """
     d = np.asarray(rig.R, np.float64)[:, 2]  # (C, 3) optical axes
