@@ -154,14 +154,9 @@ class SceneScale:
 
 
 def _fmt_length(m: float) -> str:
-    m = float(m)
-    if abs(m) >= 1.0:
-        return f"{m:.3g} m"
-    if abs(m) >= 0.1:
-        return f"{100 * m:.3g} cm"
-    if abs(m) >= 1e-3:
-        return f"{1000 * m:.3g} mm"
-    return f"{1e6 * m:.3g} um"
+    from .rig_analysis import format_length  # the one length formatter
+
+    return format_length(float(m))
 
 
 _logged: set[object] = set()  # what was logged in this process (each once)

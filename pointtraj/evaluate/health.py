@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from ..rig_analysis import format_length
 from ..scale import SceneLength
 
 __all__ = [
@@ -293,7 +294,7 @@ def health_warnings(
     if below > th.below_floor_share:
         out.append(
             f"{100 * below:.1f} % of the point-frames lie more than "
-            f"{100 * th.below_floor_m:g} cm below the floor"
+            f"{format_length(th.below_floor_m)} below the floor"
         )
     share, per_frame = get("health.labelled_share"), get("health.labelled_per_frame")
     if share < th.labelled_share or per_frame < th.labelled_per_frame:
