@@ -477,6 +477,7 @@ def synthetic_world(
     seed: int = 0,
     scale: float | None = None,
     rig_scale: float = 1.0,
+    rig: CameraRig | None = None,
 ) -> tuple[Any, Any]:
     """The rig and the scene of a synthetic capture (the one place both are made).
 
@@ -486,10 +487,13 @@ def synthetic_world(
     seed : int
     scale : float, optional
         The scene's size against its human size (default: the preset's ``scene_scale``, 1 but
-        for ``narrow7``); its stage centre is placed at the preset's target.
+        for ``narrow7``; 1 with ``rig``); its stage centre is placed at the preset's target.
     rig_scale : float
         The rig's camera centres scaled about the preset's target (``narrow7`` with
         ``scale = 1, rig_scale = 250`` is ``narrow7``'s capture at 250 times its size).
+    rig : CameraRig, optional
+        Cameras already in the scenes' frame (a synthetic twin,
+        :func:`~.presets.twin_rig`) instead of the preset's; ``preset`` is then only a name.
 
     Returns
     -------
@@ -499,6 +503,10 @@ def synthetic_world(
     from .presets import PRESETS, make_rig, scale_rig
     from .scenes import make_scene, scale_scene
 
+    if rig is not None:
+        if rig_scale != 1.0:
+            raise ValidationError("rig_scale applies to a preset's rig, not to a given rig")
+        return rig, scale_scene(make_scene(scene, seed), 1.0 if scale is None else float(scale))
     rig = make_rig(preset)  # refuses an unknown preset
     spec = PRESETS[preset]
     factor = spec.scene_scale if scale is None else float(scale)
@@ -577,7 +585,7 @@ def render_capture(
     from ..session import Capture
     from . import groundtruth as gtio
     from .presets import PRESETS
-    from .scenes import STAGE_CENTRE, make_scene, scale_scene
+    from .scenes import STAGE_CENTRE
 
     if int(frames) != frames or frames < 1:
         raise ValidationError(f"frames must be a positive integer, got {frames!r}")
@@ -590,12 +598,7 @@ def render_capture(
     twin = rig is not None
     if fps is not None and not (np.isfinite(fps) and fps > 0):
         raise ValidationError(f"fps must be a positive number, got {fps!r}")
-    if twin:
-        if rig_scale != 1.0:
-            raise ValidationError("rig_scale applies to a preset's rig, not to a given rig")
-        sc = scale_scene(make_scene(scene, seed), 1.0 if scale is None else float(scale))
-    else:
-        rig, sc = synthetic_world(preset, scene, seed, scale, rig_scale)
+    rig, sc = synthetic_world(preset, scene, seed, scale, rig_scale, rig)
     fps = float(fps) if fps is not None else (30.0 if twin else PRESETS[preset].fps)
     out = Path(out)
     params = {
@@ -838,14 +841,10 @@ def _frame_tools(job: _FrameJob, settings: RenderSettings | None) -> tuple[Any, 
     from ..rigio import load_rig
     from ..session import Capture
     from . import groundtruth as gtio
-    from .scenes import make_scene, scale_scene
 
     def make() -> tuple[Any, ...]:
-        if job.twin:
-            rig = load_rig(Path(job.out) / "rig.toml")
-            sc = scale_scene(make_scene(job.scene, job.seed), job.scale)
-        else:
-            rig, sc = synthetic_world(job.preset, job.scene, job.seed, job.scale, job.rig_scale)
+        given = load_rig(Path(job.out) / "rig.toml") if job.twin else None
+        rig, sc = synthetic_world(job.preset, job.scene, job.seed, job.scale, job.rig_scale, given)
         fps = job.fps
         points = gtio.sample_ground_truth_points(sc, job.points_per_part, job.seed)
         renderer = Renderer(sc, rig, seed=job.seed, settings=settings)
