@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FileFormatError, ValidationError
+from ..rig_analysis import format_length
 from ..scale import SceneLength, scale_lengths, work_scene_scale
 from ..workdir import WorkFolder, locked
 from . import paper
@@ -55,6 +56,9 @@ logger = logging.getLogger(__name__)
 
 #: The paper's lags of Table 1, seconds.
 PAPER_SECONDS = (1, 3, 5, 7, 9, 11, 13, 15)
+#: The ground-truth section says in bold when more than this share of the point-frames is off
+#: the surface (``EvaluateConfig.off_surface_m``).
+OFF_SURFACE_WARN = 0.10
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,10 @@ class EvaluateConfig:
         A pair counts as an SE(3)-affinity neighbour when ``A > affinity_threshold``.
     affinity_bin : float
         Width of the distance bins (m).
+    off_surface_m : float
+        A point-frame farther than this from the ground-truth surface (or with no surface near
+        it at all) is off the surface: the report gives the share by number of observed views,
+        so that wrong two-view matches, whose reprojection error is 0 by construction, show.
     seed : int
     """
 
@@ -93,6 +101,7 @@ class EvaluateConfig:
     affinity_draws: int = 16
     affinity_threshold: float = 0.5
     affinity_bin: float = SceneLength(0.1)
+    off_surface_m: float = SceneLength(0.05)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -113,6 +122,8 @@ class EvaluateConfig:
             raise ValidationError("evaluate.affinity_bin must be in (0, affinity_radius]")
         if not 0 <= self.affinity_threshold < 1:
             raise ValidationError("evaluate.affinity_threshold must be in [0, 1)")
+        if not self.off_surface_m > 0:
+            raise ValidationError("evaluate.off_surface_m must be > 0")
 
 
 def _tick(progress, label: str, total: int):
@@ -325,16 +336,59 @@ def _summary_section(traj, metrics: dict) -> Section:
     return Section("Trajectories", body)
 
 
+def _error_by_views(
+    err: np.ndarray, views: np.ndarray, off_m: float, metrics: dict
+) -> tuple[list[str], float]:
+    """Rows of the 3D-error table by observed views, and the share of all point-frames off the
+    surface (farther than ``off_m``, or NaN: no surface near). ``err`` (P,) metres, ``views``
+    (P,) observed views per point-frame; the figures go into ``metrics``."""
+    from .health import UNVERIFIABLE_BINS, VIEW_BINS
+
+    with np.errstate(invalid="ignore"):
+        off = ~(err <= off_m)  # NaN (no surface near) counts as off
+    rows = []
+    for name, (lo, hi) in VIEW_BINS.items():
+        sel = (views >= lo) & (views <= hi)
+        e = err[sel & np.isfinite(err)]
+        share = float(off[sel].mean()) if sel.any() else float("nan")
+        metrics[f"gt.error_m.views.{name}.median"] = _q(e, 50)
+        metrics[f"gt.error_m.views.{name}.p90"] = _q(e, 90)
+        metrics[f"gt.error_m.views.{name}.support"] = int(sel.sum())
+        metrics[f"gt.off_surface.views.{name}.share"] = share
+        label = "at most 1" if name == "1" else name
+        note = " (unverifiable by reprojection)" if name in UNVERIFIABLE_BINS else ""
+        rows.append(
+            f"| {label}{note} | {int(sel.sum())} | {_mm(_q(e, 50))} | {_mm(_q(e, 90))} | "
+            f"{_fmt(100 * share, 1)} % |"
+        )
+    total = float(off.mean()) if len(off) else float("nan")
+    metrics["gt.off_surface.share"] = total
+    metrics["gt.off_surface_m"] = float(off_m)
+    return rows, total
+
+
 def _ground_truth_section(
-    capture: Path, traj, truth, source: str, smap, labels, folder: Path, metrics: dict, progress
+    capture: Path,
+    traj,
+    truth,
+    source: str,
+    smap,
+    labels,
+    folder: Path,
+    metrics: dict,
+    progress,
+    off_surface_m: float = 0.05,
 ) -> Section:
     from ..session import Capture
     from .groundtruth import surface_errors
+    from .health import observed_views
     from .metrics import label_accuracy
 
     rig = Capture.open(capture).rig.subset(traj.camera_names)
     step = _tick(progress, "evaluate: 3D error", traj.num_frames)
     err = surface_errors(capture, rig, traj, progress=step)
+    views, _ = observed_views(traj.visibility)
+    view_rows, off_share = _error_by_views(err, views, off_surface_m, metrics)
     none = ~np.isfinite(err)  # no ground-truth surface near the point in any camera
     err = err[~none]
     metrics.update(
@@ -359,7 +413,22 @@ def _ground_truth_section(
         "camera: they are far from every surface, and counted here instead of in the "
         "percentiles.",
         "",
+        f"By observed views, with the share of point-frames off the surface (more than "
+        f"{format_length(off_surface_m)} from it, or with none near). A wrong two-view match "
+        "has a reprojection error near 0 and can lie metres away: only this column shows it.",
+        "",
+        "| observed views | point-frames | median (mm) | p90 (mm) | off the surface |",
+        "|---|---|---|---|---|",
+        *view_rows,
+        "",
     ]
+    if off_share > OFF_SURFACE_WARN:
+        lines += [
+            f"**{_fmt(100 * off_share, 1)} % of the point-frames are off the surface** (above "
+            f"{_fmt(100 * OFF_SURFACE_WARN, 0)} %): look at the rows above for the views they "
+            "have.",
+            "",
+        ]
     fg = truth >= 0
     names = list(smap.class_names) if smap is not None else list(labels.class_names)
     K = len(names)
@@ -1001,7 +1070,18 @@ def evaluate_work(
         )
     if gt and (smap is not None or labels is not None):
         sections.append(
-            _ground_truth_section(cap, traj, truth, source, smap, labels, folder, metrics, progress)
+            _ground_truth_section(
+                cap,
+                traj,
+                truth,
+                source,
+                smap,
+                labels,
+                folder,
+                metrics,
+                progress,
+                cfg.off_surface_m,
+            )
         )
     elif not gt:
         notes.append(
@@ -1120,6 +1200,12 @@ def headline(metrics: dict[str, Any]) -> list[str]:
             f"3D error vs ground truth: median {_mm(m('gt.error_m.median'))} mm, "
             f"p90 {_mm(m('gt.error_m.p90'))} mm"
             + (f" ({none} point-frames with no surface near, left out)" if none else "")
+            + (
+                f"; {_fmt(100 * m('gt.off_surface.share'), 1)} % of point-frames off the "
+                f"surface (> {format_length(m('gt.off_surface_m'))})"
+                if m("gt.off_surface.share") is not None
+                else ""
+            )
         )
     acc = [
         f"{name} {_fmt(100 * m(f'gt.accuracy.{key}'), 1)} %"

@@ -53,6 +53,12 @@ def test_evaluate_writes_the_report(gt_work):
     # Every ground-truth point lies on a surface: none is left out of the 3D error.
     assert metrics["gt.no_surface"] == 0
     assert metrics["gt.error_m.support"] == metrics["trajectories.point_frames"]
+    # ... and none is off it, in any view bucket; the buckets cover every point-frame.
+    assert metrics["gt.off_surface.share"] == 0.0
+    assert (
+        sum(metrics[f"gt.error_m.views.{v}.support"] for v in ("1", "2", "3", "4+"))
+        == metrics["trajectories.point_frames"]
+    )
     assert saved["health.warnings"] == metrics["health.warnings"]
     assert (
         sum(metrics[f"reprojection_px.views.{v}.support"] for v in ("1", "2", "3", "4+"))
@@ -69,6 +75,8 @@ def test_evaluate_writes_the_report(gt_work):
     index = (work / "report" / "index.md").read_text(encoding="utf-8")
     assert "## Ground truth" in index and "paper's Table 1" in index
     assert "## Views" in index and "| view recall" in index
+    assert "| observed views | point-frames | median (mm) | p90 (mm) | off the surface |" in index
+    assert "off the surface** (above" not in index
     for png in ("confusion.png", "affinity.png", "validity.png"):
         assert (work / "report" / png).stat().st_size > 1000
     lines = headline(saved)
@@ -242,3 +250,22 @@ def test_temporal_verdict_names_the_lags_where_view_falls_below():
     # The headline lists the lags in time order (metrics.json sorts "11s" before "1s").
     nc = {f"temporal_nc.view.{s}s": s / 100 for s in (11, 1, 3)}
     assert "view pooling: 0.01 at 1s, 0.03 at 3s, 0.11 at 11s" in "\n".join(headline(nc))
+
+
+def test_error_by_views_shows_wrong_two_view_points():
+    """Two-view points a metre off (a wrong match) and points with no surface near count as off
+    the surface, in their own view bucket; the other buckets stay clean."""
+    from pointtraj.evaluate.study import _error_by_views
+
+    err = np.array([0.001, 0.002, 1.0, np.nan, 0.003, 0.004, 0.002, 0.001])
+    views = np.array([2, 2, 2, 2, 3, 3, 5, 1])
+    metrics: dict = {}
+    rows, share = _error_by_views(err, views, 0.05, metrics)
+    assert share == pytest.approx(2 / 8) == metrics["gt.off_surface.share"]
+    assert metrics["gt.off_surface.views.2.share"] == pytest.approx(0.5)
+    assert metrics["gt.error_m.views.2.support"] == 4
+    assert metrics["gt.error_m.views.2.median"] == pytest.approx(0.002)  # NaN left out
+    assert metrics["gt.off_surface.views.3.share"] == 0.0
+    assert metrics["gt.off_surface.views.4+.share"] == 0.0
+    assert metrics["gt.error_m.views.1.support"] == 1
+    assert len(rows) == 4 and "unverifiable" in rows[1] and "50.0 %" in rows[1]
