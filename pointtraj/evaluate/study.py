@@ -387,7 +387,9 @@ def _ground_truth_section(
     rig = Capture.open(capture).rig.subset(traj.camera_names)
     step = _tick(progress, "evaluate: 3D error", traj.num_frames)
     err = surface_errors(capture, rig, traj, progress=step)
-    views, _ = observed_views(traj.visibility)
+    views, _ = observed_views(traj.visibility)  # (P,) in the store's order
+    rows = [traj.frame_rows(t) for t in range(traj.num_frames)]  # err is in frame order
+    views = views[np.concatenate(rows)] if rows else views[:0]
     view_rows, off_share = _error_by_views(err, views, off_surface_m, metrics)
     none = ~np.isfinite(err)  # no ground-truth surface near the point in any camera
     err = err[~none]

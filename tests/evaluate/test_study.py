@@ -269,3 +269,28 @@ def test_error_by_views_shows_wrong_two_view_points():
     assert metrics["gt.off_surface.views.4+.share"] == 0.0
     assert metrics["gt.error_m.views.1.support"] == 1
     assert len(rows) == 4 and "unverifiable" in rows[1] and "50.0 %" in rows[1]
+
+
+def test_off_surface_share_follows_each_point_frame_views(gt_work, tmp_path):
+    """The 3D error is measured frame by frame and the views are stored trajectory by
+    trajectory: each point-frame's error must meet its own view count. Odd trajectories are
+    moved 10 m off the surface (far from every surface) and given two views, even ones keep every view."""
+    import dataclasses
+    import shutil
+
+    cap, work = gt_work
+    moved = tmp_path / "work"
+    shutil.copytree(work, moved, ignore=shutil.ignore_patterns("report"))
+    traj = Trajectories.load(moved / "trajectories.npz")
+    odd = (traj.row_track % 2 == 1)[:, None]  # (P, 1)
+    xyz = traj.xyz + np.where(odd, np.float32([0, 0, 10.0]), np.float32(0))
+    two = np.zeros_like(traj.visibility)
+    two[:, :2] = 255
+    vis = np.where(odd, two, np.full_like(traj.visibility, 255))
+    dataclasses.replace(traj, xyz=xyz, visibility=vis).save(moved / "trajectories.npz")
+    metrics = evaluate_work(moved, EvaluateConfig(validity_tracks=50, validity_frames=1))
+    assert metrics["gt.error_m.views.2.support"] == int(odd.sum())
+    assert metrics["gt.off_surface.views.2.share"] == 1.0
+    assert metrics["gt.off_surface.views.4+.share"] == 0.0
+    assert metrics["gt.off_surface.share"] == pytest.approx(odd.mean())
+    assert "off the surface** (above 10 %)" in (moved / "report" / "index.md").read_text()
