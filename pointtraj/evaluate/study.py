@@ -942,13 +942,20 @@ def _health_section(wf: WorkFolder, cap: Path, traj, labels, metrics: dict) -> S
         f"{_fmt(100 * m('health.camera_share.min'), 1)} % | < {100 * th.camera_share:g} % |"
     )
     if "health.below_floor_share" in metrics:
+        floor = (
+            f"under the labelled feet: {format_length(m('health.floor_height_m'))}"
+            if m("health.floor") == "feet"
+            else "z = 0"
+        )
         rows.append(
-            f"| point-frames more than {100 * th.below_floor_m:g} cm below the floor (z = 0) | "
-            f"{_fmt(100 * m('health.below_floor_share'), 2)} % | "
+            f"| point-frames more than {format_length(m('health.below_floor_m'))} below the floor "
+            f"({floor}) | {_fmt(100 * m('health.below_floor_share'), 2)} % | "
             f"> {100 * th.below_floor_share:g} % |"
         )
     elif known_floor(cap) is None:
-        rows.append("| points below the floor | n/a (the rig names no floor) | |")
+        rows.append(
+            "| points below the floor | n/a (the rig names no floor and no feet are labelled) | |"
+        )
     if "health.labelled_share" in metrics:
         rows.append(
             f"| trajectories on a labelled class; labelled points per frame | "

@@ -15,6 +15,7 @@ from pointtraj.cli import main
 from pointtraj.evaluate.health import (
     HealthThresholds,
     check_health,
+    floor_from_feet,
     health_lines,
     health_warnings,
     known_floor,
@@ -127,6 +128,58 @@ def test_check_health_of_stores(tmp_path):
     assert m["health.labelled_share"] == pytest.approx(2 / M)
     text = " | ".join(health_warnings(m))
     assert "below the floor" in text and "few points on the labelled classes" in text
+
+
+def _feet_store(seed: int = 0):
+    """A real rig's store (no known floor, z up): 300 foot trajectories between the floor
+    (z = 0) and 10 cm; 20 wrong ones labelled foot, spread thin 0.5-6 m below the floor; 400
+    body points at 0.8-1.2 m, and 100 more 1-2 m below the floor (a ghost floor). Labels:
+    class 0 ``left_foot``, class 1 ``torso``."""
+    rng = np.random.default_rng(seed)
+    feet = rng.uniform([-0.3, -0.3, 0.0], [0.3, 0.3, 0.1], (300, 3))
+    wrong = rng.uniform([-0.3, -0.3, -6.0], [0.3, 0.3, -0.5], (20, 3))
+    body = rng.uniform([-0.3, -0.3, 0.8], [0.3, 0.3, 1.2], (400, 3))
+    ghost = rng.uniform([-0.3, -0.3, -2.0], [0.3, 0.3, -1.0], (100, 3))
+    xyz = np.repeat(np.concatenate([feet, wrong, body, ghost])[:, None], 3, axis=1)
+    vis = np.ones((len(xyz), 3, 4))
+    store = Trajectories.from_dense(xyz, vis, camera_names=[f"cam{i:02d}" for i in range(4)])
+    cls = np.r_[np.zeros(320), np.ones(500)].astype(np.int64)
+    labels = TrajectoryLabels(
+        cls, np.zeros(len(cls), np.float32), np.zeros(len(cls), np.int64), ("left_foot", "torso")
+    )
+    return store, labels, len(ghost) + len(wrong)
+
+
+def test_floor_from_feet_ignores_thin_wrong_feet():
+    store, labels, _ = _feet_store()
+    up = np.array([0.0, 0.0, 1.0])
+    floor = floor_from_feet(store, labels, up, 0.025)
+    assert 0.0 <= floor <= 0.025  # the 2nd percentile would be metres below
+    assert np.percentile(store.xyz[: 320 * 3, 2], 2) < -1.0
+    # No foot class, or too few foot points: no estimate.
+    torso_only = TrajectoryLabels(labels.labels, labels.confidence, labels.argmax, ("a", "b"))
+    assert floor_from_feet(store, torso_only, up, 0.025) is None
+    few = store.subset(np.r_[np.arange(10), np.arange(320, 820)])
+    few_labels = TrajectoryLabels(
+        labels.labels[np.r_[np.arange(10), np.arange(320, 820)]],
+        np.zeros(510, np.float32),
+        np.zeros(510, np.int64),
+        labels.class_names,
+    )
+    assert floor_from_feet(few, few_labels, up, 0.025) is None
+
+
+def test_a_real_rig_gets_its_floor_from_the_feet():
+    """No known floor (no capture): the floor under the labelled feet flags the ghost floor."""
+    store, labels, under = _feet_store()
+    rig = ring_rig(4, names="cam{i:02d}")  # z up, cameras in a level ring
+    m = check_health(store, rig, None, labels=labels)
+    assert m["health.floor"] == "feet" and 0.0 <= m["health.floor_height_m"] <= 0.025
+    assert m["health.below_floor_share"] == pytest.approx(under / store.num_trajectories)
+    text = " | ".join(health_warnings(m))
+    assert "below the floor (the floor under the labelled feet" in text
+    # Without labels there is nothing to stand on.
+    assert "health.below_floor_share" not in check_health(store, rig, None)
 
 
 def test_observed_views_is_the_store_count():
