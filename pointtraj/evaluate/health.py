@@ -86,8 +86,8 @@ class HealthThresholds:
         Where the floor is estimated from the labelled feet (a real rig,
         :func:`floor_from_feet`), a point-frame is below it when it lies more than this under
         it: the feet may stand on a platform (a treadmill, a stage, a step) above the room's
-        floor. On the Pose2Sim demo, where the subject walks on a treadmill, 10.8 % of the
-        point-frames lie more than 0.5 m under the feet and 5.5 % more than 1 m.
+        floor. On the Pose2Sim demo, where the subject walks on a treadmill, 11.4 % of the
+        point-frames lie more than 0.5 m under the feet and 5.8 % more than 1 m.
     below_floor_share : float
         Warn when more than this share of the point-frames is below the floor.
     labelled_share : float
