@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,9 +55,10 @@ PAPER_MAX_ANGLE_DEG = 90.0
 #: Point-frames per chunk of the passes over a store (bounded memory).
 _CHUNK = 1 << 20
 
-#: Classes whose name holds this stand on the floor (the body-parts recogniser's
-#: ``left_foot``, ``right_foot``): where a rig names no floor, theirs is estimated from them.
-FOOT_WORD = "foot"
+#: Classes whose last word is one of these stand on the floor (the body-parts recogniser's
+#: ``left_foot``, ``right_foot``; not ``football``): where a rig names no floor, theirs is
+#: estimated from them.
+FOOT_WORDS = ("foot", "feet")
 #: Foot point-frames a floor estimate needs.
 MIN_FOOT_POINTS = 50
 #: The floor is the bottom of the lowest height bin that holds at least this share of the
@@ -199,7 +201,7 @@ def floor_from_feet(trajectories, labels, up: np.ndarray, bin_m: float) -> float
     """The floor's height along ``up``, estimated from the points labelled as feet.
 
     For real rigs, whose files name no floor (:func:`known_floor`). The heights of the
-    point-frames of trajectories whose class name holds :data:`FOOT_WORD` are binned by
+    point-frames of trajectories whose class name ends with a word of :data:`FOOT_WORDS` are binned by
     ``bin_m``; the floor is the bottom of the lowest bin holding at least
     :data:`FOOT_DENSITY` times the fullest. On the Pose2Sim demo (floor at z = 0) this gives
     0.0 m from 4,857 foot point-frames, where their 2nd percentile is -6 mm and, on the synthetic
@@ -222,7 +224,7 @@ def floor_from_feet(trajectories, labels, up: np.ndarray, bin_m: float) -> float
         point-frames.
     """
     names = list(labels.class_names)
-    feet = [k for k, name in enumerate(names) if FOOT_WORD in name.lower()]
+    feet = [k for k, n in enumerate(names) if re.split(r"[_\W]+", n.lower())[-1] in FOOT_WORDS]
     lab = np.asarray(labels.labels)
     if not feet or len(lab) != trajectories.num_trajectories:
         return None

@@ -157,8 +157,12 @@ def test_floor_from_feet_ignores_thin_wrong_feet():
     assert 0.0 <= floor <= 0.025  # the 2nd percentile would be metres below
     assert np.percentile(store.xyz[: 320 * 3, 2], 2) < -1.0
     # No foot class, or too few foot points: no estimate.
-    torso_only = TrajectoryLabels(labels.labels, labels.confidence, labels.argmax, ("a", "b"))
-    assert floor_from_feet(store, torso_only, up, 0.025) is None
+    for names in (("a", "b"), ("football", "torso"), ("footwear", "torso")):
+        other = TrajectoryLabels(labels.labels, labels.confidence, labels.argmax, names)
+        assert floor_from_feet(store, other, up, 0.025) is None, names
+    for names in (("foot", "torso"), ("Left Foot", "torso"), ("feet", "x")):
+        feet = TrajectoryLabels(labels.labels, labels.confidence, labels.argmax, names)
+        assert floor_from_feet(store, feet, up, 0.025) == floor, names
     few = store.subset(np.r_[np.arange(10), np.arange(320, 820)])
     few_labels = TrajectoryLabels(
         labels.labels[np.r_[np.arange(10), np.arange(320, 820)]],
