@@ -152,14 +152,15 @@ def cut_study(truth, l3d, count, g, lambdas, supports, seed: int) -> None:
         return acc(res.labels)
 
     allk = np.ones(g.num_edges, bool)
-    cross = (truth[g.row] != truth[g.col]) & (truth[g.row] >= 0) & (truth[g.col] >= 0)
+    both = (truth[g.row] >= 0) & (truth[g.col] >= 0)
+    cross = both & (truth[g.row] != truth[g.col])
     print(f"\n## the cut ({int(fg.sum())} trajectories judged)\n")
     print(f"argmax view-pooled L3D: {acc(argmax_labels(l3d)):.1f} %")
     print(f"graph cut, defaults: {cut(allk):.1f} %")
     rng = np.random.default_rng(seed)
     for f in (0.25, 0.5, 0.75, 1.0):
         keep = ~(cross & (rng.random(g.num_edges) < f))
-        share = g.weight[keep & cross].sum() / g.weight[keep].sum()
+        share = g.weight[keep & cross].sum() / g.weight[keep & both].sum()
         print(
             f"without {100 * f:.0f} % of the cross-class edges (cross share {share:.3f}): "
             f"{cut(keep):.1f} %"
