@@ -427,3 +427,25 @@ def test_view_break_restarts_the_rigidity_test():
     # without breaks the direction that predicts k fails (A ~ 0); the other direction restarts
     # where k's own transform cannot be fitted, so the mean stays at most about 0.5
     assert g_plain.affinity[on_k_plain].max() < 0.51
+
+
+def test_compute_affinity_with_given_transforms():
+    """Known motions in place of fitted ones: each body's exact rotation separates the bodies
+    even where no ε-neighbour exists to fit a transform (ε = 1 µm)."""
+    rng = np.random.default_rng(23)
+    traj, body, _ = articulated_scene(rng, n=150)
+    P = traj.num_point_frames
+    omega = np.where(body == 0, 0.06, -0.06)[traj.row_track]  # (P,) each body's turn per frame
+    rot = np.stack([rotation_z(w) for w in omega]).astype(np.float32)
+    rot[traj.offsets[:-1]] = np.nan  # no transform at a trajectory's first frame
+    exact = LocalTransforms(rot, np.zeros(P, np.int16))
+    cfg = AffinityConfig(epsilon=1e-6, seed=4)
+    g = compute_affinity(traj, cfg, transforms=exact)
+    same = body[g.row] == body[g.col]
+    assert same.sum() > 50
+    np.testing.assert_allclose(g.affinity[same], 1.0, atol=1e-4)
+    fitted = compute_affinity(traj, cfg)  # nothing to fit with: every pair untestable
+    np.testing.assert_array_equal(fitted.affinity, 1.0)
+    assert (~same).sum() < 0.2 * (fitted.num_edges - (body[fitted.row] == body[fitted.col]).sum())
+    with pytest.raises(ValidationError, match="transforms.rotation"):
+        compute_affinity(traj, cfg, transforms=LocalTransforms(rot[:-1], np.zeros(P - 1, np.int16)))
