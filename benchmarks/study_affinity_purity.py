@@ -156,7 +156,7 @@ def cut_study(truth, l3d, count, g, lambdas, supports, seed: int) -> None:
     cross = both & (truth[g.row] != truth[g.col])
     print(f"\n## the cut ({int(fg.sum())} trajectories judged)\n")
     print(f"argmax view-pooled L3D: {acc(argmax_labels(l3d)):.1f} %")
-    print(f"graph cut, defaults: {cut(allk):.1f} %")
+    print(f"graph cut, LabelingConfig defaults: {cut(allk):.1f} %")
     rng = np.random.default_rng(seed)
     for f in (0.25, 0.5, 0.75, 1.0):
         keep = ~(cross & (rng.random(g.num_edges) < f))
