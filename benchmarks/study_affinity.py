@@ -212,7 +212,9 @@ def label_study(traj, truth, smap, names, noise: float, lambdas, taus, seed: int
             graphs[acfg] = (compute_affinity(noisy, acfg), time.perf_counter() - t0)
         g, secs = graphs[acfg]
         l3d = smap.L3D[pooling].astype(np.float64)
-        res = label_trajectories(l3d, g.row, g.col, g.weight, LabelingConfig(**lab_over))
+        res = label_trajectories(
+            l3d, g.row, g.col, g.weight, LabelingConfig(**lab_over), support=smap.count[pooling]
+        )
         changed = int((res.labels != l3d.argmax(1)).sum())
         assert all(b <= a + 1e-9 * max(1.0, abs(a)) for a, b in zip(res.energy, res.energy[1:]))
         row(

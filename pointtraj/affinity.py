@@ -68,6 +68,7 @@ __all__ = [
     "filter_neighbors",
     "fit_local_rigid",
     "local_transforms",
+    "view_breaks",
     "pair_errors",
     "both_pair_errors",
     "symmetric_affinity",
@@ -131,6 +132,14 @@ class AffinityConfig:
     min_affinity : float
         Edges whose weight (affinity times kernel) is smaller are dropped (they change almost no
         labelling and cost time in the graph cut); 0 keeps every candidate pair.
+    view_breaks : bool
+        Treat a step at which a trajectory's set of observing cameras changes as a break
+        (:func:`view_breaks`): its re-triangulated position jumps there, which the rigidity
+        test would read as motion. Off by default (the paper's test over every step): on the
+        demo's reconstruction it doubles the weighted degree but leaves the cross-part share
+        of the weight where it was and lowers the cut's accuracy, and on ground-truth
+        trajectories, whose positions never jump, it only removes evidence
+        (``docs/labeling.md``).
     seed : int
         Seed of the drop-out and RANSAC sampling.
     """
@@ -149,6 +158,7 @@ class AffinityConfig:
     mode: Literal["step", "accumulated"] = "accumulated"
     symmetrize: Literal["mean", "max", "min"] = "mean"
     min_affinity: float = 1e-3
+    view_breaks: bool = False
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -236,10 +246,15 @@ class LocalTransforms:
         where too few ε-neighbours were alive.
     inliers : (P,) int16 ndarray
         RANSAC inliers (ε-neighbours) of the refitted transform; -1 where there is none.
+    breaks : (P,) bool ndarray, optional
+        Point-frames whose step from the previous frame is not motion (:func:`view_breaks`):
+        they get no transform, enter no fit as neighbours, and pair errors restart there.
+        None: no breaks.
     """
 
     rotation: np.ndarray
     inliers: np.ndarray
+    breaks: np.ndarray | None = None
 
     def translation(self, traj: Trajectories) -> np.ndarray:
         """(P, 3) float32 ``t_t^i = X_t^i - R_t^i X_{t-1}^i`` (NaN where undefined)."""
@@ -258,6 +273,39 @@ def _middle_frames(traj: Trajectories) -> np.ndarray:
 def _rows_at(traj: Trajectories, tracks: np.ndarray, frames: np.ndarray) -> np.ndarray:
     """Rows of ``tracks`` at ``frames`` (caller guarantees they are alive)."""
     return traj.offsets[tracks] + (frames - traj.first_frame[tracks])
+
+
+#: Point-frames per chunk of :func:`view_breaks` (bounds the (rows, C) comparison).
+_BREAK_ROWS = 1_000_000
+
+
+def view_breaks(traj: Trajectories) -> np.ndarray:
+    """Point-frames whose set of observing cameras differs from the trajectory's previous frame.
+
+    A reconstructed point is triangulated from the cameras that observe it; when that set
+    changes, its position jumps by the difference between the two estimates (a few mm, up to
+    2 cm for two-view points), which is not motion. The affinity treats such a step as a break.
+
+    Parameters
+    ----------
+    traj : Trajectories
+
+    Returns
+    -------
+    (P,) bool ndarray
+        True at a row whose observed views (visibility >= ``trajectories.OBSERVED_MIN``) differ
+        from the previous row's of the same trajectory; False at each trajectory's first row.
+    """
+    from .trajectories import OBSERVED_MIN
+
+    P = traj.num_point_frames
+    out = np.zeros(P, dtype=bool)
+    for a in range(1, P, _BREAK_ROWS):
+        b = min(a + _BREAK_ROWS, P)
+        obs = traj.visibility[a - 1 : b] >= OBSERVED_MIN  # (b - a + 1, C)
+        out[a:b] = np.any(obs[1:] != obs[:-1], axis=1)
+    out[traj.offsets[:-1]] = False
+    return out
 
 
 def sample_neighbors(
@@ -528,8 +576,8 @@ def _fit_chunk(
 
     Parameters
     ----------
-    context : (Trajectories, (M, S) int64 ndarray, AffinityConfig)
-        The store, the ε-neighbours and the settings.
+    context : (Trajectories, (M, S) int64 ndarray, AffinityConfig, (P,) bool ndarray or None)
+        The store, the ε-neighbours, the settings and the breaks (:func:`view_breaks`).
     item : ((B,) int64, (B, H) float64, (B, H) float64 ndarrays)
         The rows of i at t, and the uniform draws that pick each hypothesis's two neighbours.
 
@@ -543,7 +591,7 @@ def _fit_chunk(
     inliers : (F,) int ndarray
         Their inlier counts under the refined rotation.
     """
-    traj, nbrs, cfg = context
+    traj, nbrs, cfg, breaks = context
     r, u1, u2 = item
     S = nbrs.shape[1]
     thr2 = cfg.ransac_threshold**2
@@ -557,6 +605,8 @@ def _fit_chunk(
     )
     rj = traj.offsets[jj] + t[:, None] - traj.first_frame[jj]  # (B, S)
     rj = np.where(alive, rj, 0)
+    if breaks is not None:  # a neighbour whose views changed at t did not move by its step
+        alive &= ~breaks[rj]
     a = xyz[np.maximum(rj - 1, 0)] - xyz[r - 1][:, None]  # (B, S, 3) Δ at t-1
     b = xyz[rj] - xyz[r][:, None]  # (B, S, 3) Δ at t
     # valid neighbours first, then sample index pairs among them
@@ -565,6 +615,8 @@ def _fit_chunk(
     b = np.take_along_axis(b, order[..., None], axis=1)
     nval = alive.sum(axis=1)  # (B,)
     ok = nval >= max(2, cfg.min_inliers)
+    if breaks is not None:  # neither did i: no transform at a break of its own
+        ok &= ~breaks[r]
     n = np.maximum(nval, 2)
     k1 = (u1 * n[:, None]).astype(np.int64)
     k2 = (k1 + 1 + (u2 * (n[:, None] - 1)).astype(np.int64)) % n[:, None]
@@ -592,6 +644,7 @@ def fit_local_rigid(
     *,
     progress: Callable[[int], None] | None = None,
     executor: Executor | None = None,
+    breaks: np.ndarray | None = None,
 ) -> LocalTransforms:
     """RANSAC fit of ``(R_t^i, t_t^i)`` for every trajectory i and frame t (t - 1 alive).
 
@@ -612,6 +665,9 @@ def fit_local_rigid(
     executor : Executor, optional
         Where the chunks of point-frames are fitted (default: serially, here); the random
         draws are made here, so the transforms are the same on any executor.
+    breaks : (P,) bool ndarray, optional
+        :func:`view_breaks`: no transform at a break of i, and a neighbour at a break of its
+        own is left out of the fit; kept in the result for :func:`pair_errors`.
 
     Returns
     -------
@@ -638,7 +694,7 @@ def fit_local_rigid(
         chunks(),
         label="local rigid transforms",
         total=-(-rows_all.size // chunk),
-        context=(traj, nbrs, cfg),
+        context=(traj, nbrs, cfg, breaks),
     )
     for r, ok, R, n2 in fits:
         rot[r[ok]] = R
@@ -650,7 +706,7 @@ def fit_local_rigid(
         int((inl >= 0).sum()),
         rows_all.size,
     )
-    return LocalTransforms(rotation=rot, inliers=inl)
+    return LocalTransforms(rotation=rot, inliers=inl, breaks=breaks)
 
 
 # -- errors and affinity -----------------------------------------------------------------------
@@ -675,7 +731,8 @@ def pair_errors(
         ``"accumulated"``: ``max_t ‖X_t^j - X̂_t^j‖`` with ``X̂`` starting at j's position at
         the first shared frame and propagated by composing i's transforms. Where i has no
         transform at a frame, the prediction restarts from j's observed position there (that
-        frame adds no error; the rest of the lifetime still counts).
+        frame adds no error; the rest of the lifetime still counts). It restarts too at a
+        break of i or j (``transforms.breaks``); in ``"step"`` mode such a step is skipped.
 
     Returns
     -------
@@ -689,12 +746,16 @@ def pair_errors(
     out = np.full(i.shape[0], np.nan)
     xyz = traj.xyz
     R = transforms.rotation
+    brk = transforms.breaks
     for pid, ri, rj in _shared_chunks(traj, i, j):
         if pid.size == 0:
             continue
         first = np.r_[True, pid[1:] != pid[:-1]]  # first shared frame of each pair
         if mode == "step":
-            k = np.flatnonzero(~first)  # consecutive (t-1, t) within S
+            step = ~first  # consecutive (t-1, t) within S
+            if brk is not None:
+                step &= ~(brk[ri] | brk[rj])
+            k = np.flatnonzero(step)
             if k.size == 0:
                 continue
             dj0 = (xyz[rj[k] - 1] - xyz[ri[k] - 1]).astype(np.float64)
@@ -714,6 +775,8 @@ def pair_errors(
                 obs = (xyz[rj[k]] - xyz[ri[k]]).astype(np.float64)
                 p = (R[ri[k]] @ pred[live][:, :, None])[:, :, 0]
                 gap = np.isnan(p[:, 0])  # no transform of i at this frame: restart from obs
+                if brk is not None:  # or the views of i or j changed: the step is no motion
+                    gap |= brk[ri[k]] | brk[rj[k]]
                 e = np.linalg.norm(obs - p, axis=1)
                 e[gap] = np.nan
                 p[gap] = obs[gap]
@@ -752,7 +815,8 @@ def local_transforms(
     nb = filter_neighbors(
         traj, sample_neighbors(traj, config.epsilon, config.rigid_neighbors, rng), config.epsilon
     )
-    return fit_local_rigid(traj, nb, config, executor=executor)
+    breaks = view_breaks(traj) if config.view_breaks else None
+    return fit_local_rigid(traj, nb, config, executor=executor, breaks=breaks)
 
 
 #: Pairs per task of :func:`both_pair_errors`.
@@ -856,6 +920,7 @@ def compute_affinity(
     *,
     progress: Callable[[str, int, int], None] | None = None,
     executor: Executor | None = None,
+    transforms: LocalTransforms | None = None,
 ) -> AffinityGraph:
     """The sparse symmetric affinity graph of a trajectory store (paper Equation (affinity)).
 
@@ -868,6 +933,9 @@ def compute_affinity(
     executor : Executor, optional
         Where the local rigid fits and the pair errors run, by chunks of point-frames and of
         pairs (default: serially, here). The graph is the same on any executor.
+    transforms : LocalTransforms, optional
+        The local rigid transforms to test the pairs with, instead of fitting them
+        (:func:`local_transforms`); for studies that supply known motions.
 
     Returns
     -------
@@ -886,7 +954,11 @@ def compute_affinity(
             progress(stage, done, total)
 
     report("epsilon-neighbours and local rigid transforms", 0, 5)
-    tf = local_transforms(traj, cfg, rng, executor)
+    if transforms is None:
+        tf = local_transforms(traj, cfg, rng, executor)
+    else:
+        tf = transforms
+        check_array("transforms.rotation", tf.rotation, (traj.num_point_frames, 3, 3), dtype=None)
     report("epsilon_a-neighbours", 2, 5)
     i, j, dist = candidate_pairs(traj, cfg.epsilon_a, cfg.near_neighbors, cfg.max_neighbors, rng)
     report("errors", 3, 5)

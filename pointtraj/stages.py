@@ -646,7 +646,15 @@ def _label_locked(
         steps[0] += n
         _report(progress, "label", steps[0], (K + (lab_cfg.background > 0)) * lab_cfg.max_sweeps)
 
-    res = label_trajectories(l3d, graph.row, graph.col, graph.weight, lab_cfg, progress=on_move)
+    res = label_trajectories(
+        l3d,
+        graph.row,
+        graph.col,
+        graph.weight,
+        lab_cfg,
+        support=smap.count[cfg.pooling],
+        progress=on_move,
+    )
     s = np.nansum(l3d, axis=1)
     picked = np.where(res.labels >= 0, l3d[np.arange(M), np.maximum(res.labels, 0)], 0.0)
     conf = np.where(s > 0, picked / np.where(s > 0, s, 1.0), 0.0)

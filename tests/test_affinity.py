@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -362,3 +364,88 @@ def test_cli_affinity_and_label(tmp_path):
     (tmp_path / "affinity.npz").unlink()
     res = runner.invoke(main, ["label", str(tmp_path)])
     assert res.exit_code != 0 and "affinity.npz" in res.output
+
+
+def jumping_pair_scene(T: int = 10, jump: float = 0.02, at: int = 5):
+    """A rigid cluster turning about z; trajectory 0 is re-triangulated from a third camera
+    from frame ``at`` on, and its position jumps by ``jump`` there (a measurement, not motion).
+
+    Returns (trajectories, index of the jumping trajectory).
+    """
+    rng = np.random.default_rng(31)
+    p = rng.uniform(-0.02, 0.02, (40, 3))
+    X = np.stack([p @ rotation_z(0.05 * t).T for t in range(T)], axis=1)  # (40, T, 3)
+    # from `at` on, trajectory 0 is a point of the body `jump` away from where it was
+    moved = p[0] + np.array([jump, 0.0, 0.0])
+    X[0, at:] = np.stack([rotation_z(0.05 * t) @ moved for t in range(at, T)])
+    vis = np.zeros((40, T, 3), np.float32)
+    vis[:, :, :2] = 1.0
+    vis[0, at:, 2] = 1.0  # a third view from frame `at`
+    traj = Trajectories.from_dense(X.astype(np.float32), visibility=vis)
+    return traj, 0
+
+
+def test_view_breaks_mark_changes_of_the_observing_cameras(monkeypatch):
+    import pointtraj.affinity as affinity
+
+    traj, k = jumping_pair_scene(at=5)
+    brk = affinity.view_breaks(traj)
+    assert brk.shape == (traj.num_point_frames,)
+    np.testing.assert_array_equal(np.flatnonzero(brk), [traj.offsets[k] + 5])
+    # chunked: the same answer when a chunk boundary falls anywhere
+    monkeypatch.setattr(affinity, "_BREAK_ROWS", 3)
+    np.testing.assert_array_equal(affinity.view_breaks(traj), brk)
+    # a change between two trajectories is no break: each trajectory's first row is False
+    assert not brk[traj.offsets[:-1]].any()
+
+
+def test_view_break_restarts_the_rigidity_test():
+    """Regression: a jump at a change of views was read as 2 cm of motion (A ~ 0)."""
+    import pointtraj.affinity as affinity
+
+    traj, k = jumping_pair_scene(jump=0.02, at=5)
+    cfg = AffinityConfig(epsilon=0.1, ransac_threshold=0.005, seed=2)
+    nb = filter_neighbors(traj, sample_neighbors(traj, 0.1, 12, np.random.default_rng(1)), 0.1)
+    brk = affinity.view_breaks(traj)
+    plain = fit_local_rigid(traj, nb, cfg)
+    tf = fit_local_rigid(traj, nb, cfg, breaks=brk)
+    assert tf.breaks is brk
+    row = traj.offsets[k] + 5
+    assert tf.inliers[row] == -1 and np.isnan(tf.rotation[row]).all()  # no transform at i's break
+    others = np.arange(1, traj.num_trajectories)
+    i = np.full(others.size, k)
+    for mode in ("accumulated", "step"):
+        e_plain = pair_errors(traj, plain, others, i, mode)  # others' transforms predict k
+        e = pair_errors(traj, tf, others, i, mode)
+        assert np.nanmin(e_plain) > 0.015  # the jump, read as motion
+        assert np.nanmax(e) < 1e-4  # rigid once the jump is no step
+    g_plain = compute_affinity(traj, cfg)
+    g = compute_affinity(traj, dataclasses.replace(cfg, view_breaks=True))
+    on_k = (g.row == k) | (g.col == k)
+    on_k_plain = (g_plain.row == k) | (g_plain.col == k)
+    assert on_k.sum() >= 5 and g.affinity[on_k].min() > 0.99
+    # without breaks the direction that predicts k fails (A ~ 0); the other direction restarts
+    # where k's own transform cannot be fitted, so the mean stays at most about 0.5
+    assert g_plain.affinity[on_k_plain].max() < 0.51
+
+
+def test_compute_affinity_with_given_transforms():
+    """Known motions in place of fitted ones: each body's exact rotation separates the bodies
+    even where no ε-neighbour exists to fit a transform (ε = 1 µm)."""
+    rng = np.random.default_rng(23)
+    traj, body, _ = articulated_scene(rng, n=150)
+    P = traj.num_point_frames
+    omega = np.where(body == 0, 0.06, -0.06)[traj.row_track]  # (P,) each body's turn per frame
+    rot = np.stack([rotation_z(w) for w in omega]).astype(np.float32)
+    rot[traj.offsets[:-1]] = np.nan  # no transform at a trajectory's first frame
+    exact = LocalTransforms(rot, np.zeros(P, np.int16))
+    cfg = AffinityConfig(epsilon=1e-6, seed=4)
+    g = compute_affinity(traj, cfg, transforms=exact)
+    same = body[g.row] == body[g.col]
+    assert same.sum() > 50
+    np.testing.assert_allclose(g.affinity[same], 1.0, atol=1e-4)
+    fitted = compute_affinity(traj, cfg)  # nothing to fit with: every pair untestable
+    np.testing.assert_array_equal(fitted.affinity, 1.0)
+    assert (~same).sum() < 0.2 * (fitted.num_edges - (body[fitted.row] == body[fitted.col]).sum())
+    with pytest.raises(ValidationError, match="transforms.rotation"):
+        compute_affinity(traj, cfg, transforms=LocalTransforms(rot[:-1], np.zeros(P - 1, np.int16)))

@@ -264,3 +264,38 @@ def test_background_leaves_trajectories_without_semantics_unlabelled():
     np.testing.assert_array_equal(nan.labels, [-1, -1])
     with pytest.raises(ValidationError, match="background must be in"):
         LabelingConfig(background=1.0)
+
+
+def test_support_frames_weighs_data_cost_by_pooled_frames():
+    """A long, consistently recognised trajectory keeps its label against a few short
+    neighbours; with the paper's cost (the same for every trajectory) they relabel it.
+
+    Trajectory 0 pooled 60 frames with a small margin for class 0; trajectories 1-3 pooled
+    2 frames each with the same margin for class 1, all strongly connected to 0.
+    """
+    l3d = np.array([[0.4, 0.3]] + [[0.3, 0.4]] * 3)
+    row, col, weight = np.array([0, 0, 0]), np.array([1, 2, 3]), np.full(3, 1.0)
+    count = np.array([60, 2, 2, 2])
+    paper = label_trajectories(l3d, row, col, weight, LabelingConfig(background=0.0))
+    np.testing.assert_array_equal(paper.labels, [1, 1, 1, 1])  # the short ones win
+    cfg = LabelingConfig(background=0.0, support_frames=10.0)
+    res = label_trajectories(l3d, row, col, weight, cfg, support=count)
+    np.testing.assert_array_equal(res.labels, [0, 0, 0, 0])  # 60 frames of evidence win
+    # the energy is the one of the scaled costs, and non-increasing
+    D = data_costs(l3d) * np.maximum(1.0, count / 10.0)[:, None]
+    assert res.energy[-1] == pytest.approx(labeling_energy(res.labels, D, row, col, weight, 0.5))
+    assert np.all(np.diff(res.energy) <= 1e-12)
+    # fewer frames than support_frames keep the paper's cost, never less: the same energies
+    zero = label_trajectories(l3d, row, col, weight, cfg, support=np.array([60, 0, 0, 0]))
+    np.testing.assert_allclose(zero.energy, res.energy)
+    # a short trajectory alone keeps the paper's cost: 0 against 3 short neighbours loses
+    short = label_trajectories(l3d, row, col, weight, cfg, support=np.full(4, 2))
+    np.testing.assert_array_equal(short.labels, paper.labels)
+    # without the counts every trajectory keeps the paper's cost
+    np.testing.assert_allclose(label_trajectories(l3d, row, col, weight, cfg).energy, paper.energy)
+    with pytest.raises(ValidationError, match="support"):
+        label_trajectories(l3d, row, col, weight, cfg, support=np.array([1, -1, 2, 2]))
+    with pytest.raises(ValidationError, match=r"support: expected"):
+        label_trajectories(l3d, row, col, weight, cfg, support=np.ones(3))
+    with pytest.raises(ValidationError, match="support_frames"):
+        LabelingConfig(support_frames=-1.0)
