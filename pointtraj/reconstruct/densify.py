@@ -440,6 +440,7 @@ def densify(
     margin = half * cfg.patch_spacing_px + 1
     dz = np.linspace(-cfg.depth_range_m, cfg.depth_range_m, cfg.depth_steps)  # (D,)
     found: list[np.ndarray] = []
+    subsets: dict[int, tuple[np.ndarray, CameraRig]] = {}
     total = 0
     xyz, pix = seeds_xyz, ideal
     for _ in range(cfg.rounds):
@@ -450,8 +451,9 @@ def densify(
             if total >= cfg.max_points:
                 break
             X, seen = _densify_camera(
-                rig, images, r, xyz, pix, observed, taken, angles[r], offsets, margin, dz, cfg
-            )
+                rig, images, r, xyz, pix, observed, taken, angles[r], offsets, margin, dz, cfg,
+                subsets,
+            )  # fmt: skip
             X, seen = X[: cfg.max_points - total], seen[:, : cfg.max_points - total]
             if len(X) == 0:
                 continue
@@ -623,11 +625,13 @@ def _densify_camera(
     margin: float,
     dz: np.ndarray,
     cfg: DensifyConfig,
+    subsets: dict[int, tuple[np.ndarray, CameraRig]],
 ) -> tuple[np.ndarray, np.ndarray]:
     """One reference camera's accepted candidates.
 
     ``seeds_pixels`` and ``taken`` are ideal (undistorted) pixels; ``seeds_observed`` (C, N)
-    where a seed's pixels and position are finite. Returns the new points (M, 3) and the
+    where a seed's pixels and position are finite; ``subsets`` caches, per reference camera,
+    the cameras whose images the new points are tested against (and their rig). Returns the new points (M, 3) and the
     cameras observing them (C, M) bool.
     """
     from scipy.spatial import cKDTree
@@ -711,11 +715,19 @@ def _densify_camera(
     delta = np.where(np.isfinite(delta), delta, 0.0)
     z_best = z[np.arange(n), b] + delta * (dz[1] - dz[0])
     X = cam.C + (z_best[:, None] * _rays(cam, cand)) @ cam.R  # (n, 3) world
-    proj = rig.project(X)
+    # in the image of r, its partners and the cameras the veto may ask; only those cameras are
+    # projected into (each camera's projection is its own: the same values as the whole rig's)
+    if r not in subsets:
+        need = partners_ok | (angles <= cfg.veto_angle_deg if cfg.veto_ncc > -1 else False)
+        need[r] = True
+        subsets[r] = (np.flatnonzero(need), rig.subset(np.flatnonzero(need).tolist()))
+    cams, sub = subsets[r]
+    in_image = np.zeros((C, n), bool)
+    in_image[cams] = sub.project(X).in_image
     views = np.zeros((C, n), bool)
-    views[r] = proj.in_image[r]
+    views[r] = in_image[r]
     for s, sel, scores in per_partner:
-        good = (scores[np.arange(sel.size), best[sel]] >= cfg.min_ncc) & proj.in_image[s, sel]
+        good = (scores[np.arange(sel.size), best[sel]] >= cfg.min_ncc) & in_image[s, sel]
         views[s, sel[good]] = True
     accept &= views[r] & (views.sum(axis=0) >= 2)
     if cfg.inner_ncc > -1 and accept.any():
@@ -741,7 +753,7 @@ def _densify_camera(
         # majority of disagreeing views rejects)
         disagree = np.zeros(n, np.int64)
         asked = _nearest(
-            (angles <= cfg.veto_angle_deg)[:, None] & proj.in_image & ~views & accept[None],
+            (angles <= cfg.veto_angle_deg)[:, None] & in_image & ~views & accept[None],
             angles,
             cfg.max_partners,
         )  # (C, n)
