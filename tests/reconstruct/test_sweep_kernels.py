@@ -116,3 +116,15 @@ def test_flow_goes_back_only_from_converged_points_with_the_same_results(narrow_
     plain = np.where(good[:, None], p1, np.nan)
     np.testing.assert_array_equal(out, plain)
     assert 0.3 < good.mean() < 1.0  # some fail, most follow
+
+
+def test_projection_into_some_cameras_is_that_of_the_whole_rig():
+    # densification projects its new points only into the cameras that test them
+    rig = plane_rig(angles=(-60.0, -20.0, 20.0, 60.0), dist=[-0.1, 0.02, 0.001, 0.0, 0.0])
+    X = np.vstack([plane_points(500), [[0.0, 0.0, 5.0], [np.nan, 0.0, 0.0]]])
+    whole = rig.project(X)
+    cams = [0, 2, 3]
+    part = rig.subset(cams).project(X)
+    np.testing.assert_array_equal(part.pixels, whole.pixels[cams])
+    np.testing.assert_array_equal(part.in_image, whole.in_image[cams])
+    assert whole.in_image.any() and not whole.in_image.all()
