@@ -3,7 +3,7 @@
 Two steps, as ``bench_kernels.py``. ``record`` reconstructs the first frames of a capture and
 records every call of :func:`pointtraj.reconstruct.densify.densify` and
 :func:`pointtraj.reconstruct.views.discover_views` made by the tracker: the frame's grey images
-and the other inputs, and the outputs (a pickle; about 0.7 GB a frame on paper69). ``time``
+and the other inputs, and the outputs (a pickle; about 0.45 GB a frame on paper69). ``time``
 replays the calls with the code now importable (``PYTHONPATH`` picks the version), reports the
 CPU seconds of each (the prepared images are made before the call, outside the timing) and
 whether its outputs equal the recorded ones bit for bit (``np.array_equal``, NaN equal to NaN).
