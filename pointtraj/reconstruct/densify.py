@@ -48,6 +48,8 @@ from ..scale import SceneLength
 logger = logging.getLogger(__name__)
 
 _REMAP_ROWS = 32000  # cv2.remap's maps must have fewer than 2^15 rows
+_NCC_BOUND = 1.0 + 1e-4  # an NCC's upper bound, float32 rounding included
+_NCC_BLOCK = 1 << 17  # samples per block of the NCC work arrays (0.5 MB each: they stay in cache)
 
 
 @dataclass(frozen=True)
@@ -338,11 +340,55 @@ def _zscore(patches: np.ndarray, overwrite: bool = False) -> tuple[np.ndarray, n
         return centred / std, std[..., 0]
 
 
+def _grid_axes(width: int, height: int, step: float, margin: float) -> tuple[np.ndarray, ...]:
+    """The candidate grid's columns ``us`` and rows ``vs`` (pixels)."""
+    return np.arange(margin, width - margin, step), np.arange(margin, height - margin, step)
+
+
 def _grid(width: int, height: int, step: float, margin: float) -> np.ndarray:
-    us = np.arange(margin, width - margin, step)
-    vs = np.arange(margin, height - margin, step)
+    """(G, 2) candidate pixels, row by row: point ``iv * len(us) + iu`` is ``(us[iu], vs[iv])``
+    (:func:`_grid_axes`)."""
+    us, vs = _grid_axes(width, height, step, margin)
     uu, vv = np.meshgrid(us, vs)
     return np.stack([uu.ravel(), vv.ravel()], axis=1)  # (G, 2)
+
+
+def _near_grid(points: np.ndarray, us: np.ndarray, vs: np.ndarray, radius: float) -> np.ndarray:
+    """(G,) bool: the grid points of :func:`_grid` (columns ``us``, rows ``vs``, spaced by
+    ``step``) closer than ``radius`` to one of ``points`` (Q, 2) finite.
+
+    The same test as a k-d tree query with ``distance_upper_bound=radius`` (squared
+    distances summed over u then v, compared strictly), at O(Q): with ``radius`` below the
+    spacing only the two nearest columns and rows of a point can be that close, and the
+    four around them are tested.
+    """
+    near = np.zeros(len(us) * len(vs), bool)
+    if len(points) == 0 or len(us) == 0 or len(vs) == 0:
+        return near
+    step_u = us[1] - us[0] if len(us) > 1 else np.inf
+    step_v = vs[1] - vs[0] if len(vs) > 1 else np.inf
+    iu0 = np.floor((points[:, 0] - us[0]) / step_u) if len(us) > 1 else np.zeros(len(points))
+    iv0 = np.floor((points[:, 1] - vs[0]) / step_v) if len(vs) > 1 else np.zeros(len(points))
+    if radius >= min(step_u, step_v):  # more than two columns or rows within reach
+        from scipy.spatial import cKDTree
+
+        grid = np.stack([g.ravel() for g in np.meshgrid(us, vs)], axis=1)
+        d, _ = cKDTree(points).query(grid, k=1, distance_upper_bound=radius)
+        return np.isfinite(d)
+    r2 = radius * radius
+    for du in (-1, 0, 1, 2):
+        iu = iu0 + du
+        ok_u = (iu >= 0) & (iu < len(us))
+        iu = np.where(ok_u, iu, 0).astype(np.int64)
+        d_u = points[:, 0] - us[iu]
+        for dv in (-1, 0, 1, 2):
+            iv = iv0 + dv
+            ok = ok_u & (iv >= 0) & (iv < len(vs))
+            iv = np.where(ok, iv, 0).astype(np.int64)
+            d_v = points[:, 1] - vs[iv]
+            hit = ok & (d_u * d_u + d_v * d_v < r2)
+            near[iv[hit] * len(us) + iu[hit]] = True
+    return near
 
 
 def densify(
@@ -394,16 +440,20 @@ def densify(
     margin = half * cfg.patch_spacing_px + 1
     dz = np.linspace(-cfg.depth_range_m, cfg.depth_range_m, cfg.depth_steps)  # (D,)
     found: list[np.ndarray] = []
+    subsets: dict[int, tuple[np.ndarray, CameraRig]] = {}
     total = 0
     xyz, pix = seeds_xyz, ideal
     for _ in range(cfg.rounds):
         round_X, round_seen, round_pix = [], [], []
+        # the seeds' observing cameras (C, N), once a round rather than once a reference camera
+        observed = np.all(np.isfinite(pix), axis=2) & np.all(np.isfinite(xyz), axis=1)
         for r in range(C):
             if total >= cfg.max_points:
                 break
             X, seen = _densify_camera(
-                rig, images, r, xyz, pix, taken, angles[r], offsets, margin, dz, cfg
-            )
+                rig, images, r, xyz, pix, observed, taken, angles[r], offsets, margin, dz, cfg,
+                subsets,
+            )  # fmt: skip
             X, seen = X[: cfg.max_points - total], seen[:, : cfg.max_points - total]
             if len(X) == 0:
                 continue
@@ -412,8 +462,8 @@ def densify(
             round_X.append(X)
             round_seen.append(seen)
             round_pix.append(got)
-            for c in range(C):  # later cameras and rounds leave these pixels alone
-                taken[c] = np.concatenate([taken[c], got[c][seen[c]]])
+            for c in np.flatnonzero(seen.any(axis=1)):  # later cameras and rounds leave
+                taken[c] = np.concatenate([taken[c], got[c][seen[c]]])  # these pixels alone
         if not round_X:
             break
         xyz = np.concatenate(round_X)
@@ -423,6 +473,15 @@ def densify(
     out = np.concatenate(found, axis=1) if found else np.zeros((C, 0, 2))
     logger.debug("densify: %d new points in %d rounds", out.shape[1], len(found))
     return out
+
+
+def _warp(other, cam) -> tuple[np.ndarray, np.ndarray]:
+    """The plane-sweep warp from reference camera ``cam`` into ``other``: ``M = K' R_rs``
+    (3, 3) and ``k = K' R' (C - C')`` (3,), float32 (see :func:`_ncc`)."""
+    R_rs = other.R @ cam.R.T
+    M = (other.K @ R_rs).astype(np.float32)
+    k = (other.K @ (other.R @ (cam.C - other.C))).astype(np.float32)
+    return M, k
 
 
 def _ncc(
@@ -464,28 +523,56 @@ def _ncc(
     best_shift : (n, D) int ndarray
         Only with ``shifts``: the index of the best shift at each depth.
     """
+    M, k = _warp(other, cam)
+    B = rays.astype(np.float32, copy=False) @ M.T  # (n, P, 3)
+    return _ncc_warped(image, B, np.broadcast_to(k, (len(B), 3)), z, ref, shifts)
+
+
+def _ncc_warped(
+    image: np.ndarray,
+    B: np.ndarray,
+    k: np.ndarray,
+    z: np.ndarray,
+    ref: np.ndarray,
+    shifts: np.ndarray | None = None,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """:func:`_ncc` of patches whose warps are given per row, so that one call scores the
+    patches of several reference cameras in one other camera (view discovery).
+
+    Parameters
+    ----------
+    image : (H, W) float32 ndarray
+        The other camera's undistorted image.
+    B : (n, P, 3) float32 ndarray
+        ``rays @ M.T`` with each row's reference camera's ``M`` (:func:`_warp`).
+    k : (n, 3) float32 ndarray
+        Each row's ``k`` (:func:`_warp`).
+    z, ref, shifts
+        As for :func:`_ncc`.
+
+    Returns
+    -------
+    As :func:`_ncc`.
+    """
     n, D = z.shape
     P = ref.shape[1]
     S = 1 if shifts is None else shifts.shape[1]
-    R_rs = other.R @ cam.R.T
-    M = (other.K @ R_rs).astype(np.float32)
-    k = (other.K @ (other.R @ (cam.C - other.C))).astype(np.float32)
     scores = np.full((n, D, S), -1.0)
-    rows = max(1, _REMAP_ROWS // D)
+    rows = max(1, min(_REMAP_ROWS // D, _NCC_BLOCK // (D * P * S)))
     for a in range(0, n, rows):
-        B = rays[a : a + rows].astype(np.float32, copy=False) @ M.T  # (m, P, 3)
-        Bx, By, Bw = (np.ascontiguousarray(B[..., i]) for i in range(3))  # (m, P) each
+        Bx, By, Bw = (np.ascontiguousarray(B[a : a + rows, :, i]) for i in range(3))  # (m, P)
+        kx, ky, kw = (k[a : a + rows, i, None, None] for i in range(3))  # (m, 1, 1)
         zz = z[a : a + rows].astype(np.float32)  # (m, D)
         # w = z B_w + k_w, u = (z B_x + k_x) / w, v = (z B_y + k_y) / w: the same float32
         # operations as written out; the outer products by einsum (one rounded product each,
         # 3 times faster than a broadcast multiply over the short last axis), the rest in place
         w = np.einsum("md,mp->mdp", zz, Bw)  # (m, D, P)
-        w += k[2]
+        w += kw
         np.copyto(w, np.float32(np.nan), where=w <= 1e-6)  # behind the camera: NaN
         u = np.einsum("md,mp->mdp", zz, Bx)
-        u += k[0]
+        u += kx
         v = np.einsum("md,mp->mdp", zz, By)
-        v += k[1]
+        v += ky
         with np.errstate(invalid="ignore", divide="ignore"):
             u /= w
             v /= w
@@ -531,23 +618,27 @@ def _densify_camera(
     r: int,
     seeds_xyz: np.ndarray,
     seeds_pixels: np.ndarray,
+    seeds_observed: np.ndarray,
     taken: list[np.ndarray],
     angles: np.ndarray,
     offsets: np.ndarray,
     margin: float,
     dz: np.ndarray,
     cfg: DensifyConfig,
+    subsets: dict[int, tuple[np.ndarray, CameraRig]],
 ) -> tuple[np.ndarray, np.ndarray]:
     """One reference camera's accepted candidates.
 
-    ``seeds_pixels`` and ``taken`` are ideal (undistorted) pixels. Returns the new points
-    (M, 3) and the cameras observing them (C, M) bool.
+    ``seeds_pixels`` and ``taken`` are ideal (undistorted) pixels; ``seeds_observed`` (C, N)
+    where a seed's pixels and position are finite; ``subsets`` caches, per reference camera,
+    the cameras whose images the new points are tested against (and their rig). Returns the new points (M, 3) and the
+    cameras observing them (C, M) bool.
     """
     from scipy.spatial import cKDTree
 
     C = len(rig)
     empty = (np.zeros((0, 3)), np.zeros((C, 0), bool))
-    seen = np.all(np.isfinite(seeds_pixels[r]), axis=1) & np.all(np.isfinite(seeds_xyz), axis=1)
+    seen = seeds_observed[r]
     if not seen.any():
         return empty
     cam = rig[r]
@@ -555,16 +646,18 @@ def _densify_camera(
     z_seed = ((seeds_xyz[seen] - cam.C) @ cam.R.T)[:, 2]
     partners_ok = angles <= cfg.max_angle_deg  # (C,)
     partner_mask = _nearest(
-        np.all(np.isfinite(seeds_pixels[:, seen]), axis=2) & partners_ok[:, None],
+        seeds_observed[:, seen] & partners_ok[:, None],
         angles,
         cfg.max_partners,
     )  # (C, S): each seed's observing cameras nearest to r
+    us, vs = _grid_axes(cam.width, cam.height, cfg.step_px, margin)
     grid = _grid(cam.width, cam.height, cfg.step_px, margin)
     d, j = cKDTree(q).query(grid, k=1, distance_upper_bound=cfg.radius_px)
     keep = np.isfinite(d)
     if len(taken[r]) and keep.any():
-        dt, _ = cKDTree(taken[r]).query(grid[keep], k=1, distance_upper_bound=0.75 * cfg.step_px)
-        keep[np.flatnonzero(keep)[np.isfinite(dt)]] = False
+        # no candidate near a taken pixel (a k-d tree of every taken pixel, built for each
+        # reference camera, cost more than the test of the grid points around each of them)
+        keep &= ~_near_grid(taken[r], us, vs, 0.75 * cfg.step_px)
     cand, j = grid[keep], j[keep]
     ok = partner_mask[:, j].any(axis=0) & (z_seed[j] > 0)
     cand, j = cand[ok], j[ok]
@@ -585,16 +678,23 @@ def _densify_camera(
     D = len(dz)
 
     score_sum = np.zeros((n, D))
-    count = np.zeros(n)
+    count = partner_mask[:, j].sum(axis=0).astype(np.float64)  # (n,) partners per candidate
+    swept = np.zeros(n)  # partners swept so far
+    # A candidate needs a mean NCC of min_ncc over its partners at one depth, and an NCC is
+    # at most 1: one whose partial sum cannot reach that with the partners left is rejected
+    # now, not swept in them (the others' sums, and so every accepted point, are unchanged).
+    hopeless = np.zeros(n, bool)
     per_partner: list[tuple[int, np.ndarray, np.ndarray]] = []
     for s in np.flatnonzero(partners_ok):
-        sel = np.flatnonzero(partner_mask[s, j])
+        sel = np.flatnonzero(partner_mask[s, j] & ~hopeless)
         if sel.size == 0:
             continue
         scores = _ncc(images[s], rig[s], cam, rays[sel], z[sel], ref[sel])
         score_sum[sel] += scores
-        count[sel] += 1
+        swept[sel] += 1
         per_partner.append((int(s), sel, scores))
+        reach = score_sum[sel].max(axis=1) + (count[sel] - swept[sel]) * _NCC_BOUND
+        hopeless[sel] = reach < cfg.min_ncc * count[sel] - 1e-9
 
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = score_sum / count[:, None]
@@ -604,6 +704,7 @@ def _densify_camera(
     rival = np.where(far, mean, -np.inf).max(axis=1)
     interior = (best > 0) & (best < D - 1)
     accept = (count > 0) & interior & (top >= cfg.min_ncc) & (top - rival >= cfg.min_margin)
+    accept &= ~hopeless
     if not accept.any():
         return empty
     # parabola through the peak and its neighbours
@@ -614,11 +715,19 @@ def _densify_camera(
     delta = np.where(np.isfinite(delta), delta, 0.0)
     z_best = z[np.arange(n), b] + delta * (dz[1] - dz[0])
     X = cam.C + (z_best[:, None] * _rays(cam, cand)) @ cam.R  # (n, 3) world
-    proj = rig.project(X)
+    # in the image of r, its partners and the cameras the veto may ask; only those cameras are
+    # projected into (each camera's projection is its own: the same values as the whole rig's)
+    if r not in subsets:
+        need = partners_ok | (angles <= cfg.veto_angle_deg if cfg.veto_ncc > -1 else False)
+        need[r] = True
+        subsets[r] = (np.flatnonzero(need), rig.subset(np.flatnonzero(need).tolist()))
+    cams, sub = subsets[r]
+    in_image = np.zeros((C, n), bool)
+    in_image[cams] = sub.project(X).in_image
     views = np.zeros((C, n), bool)
-    views[r] = proj.in_image[r]
+    views[r] = in_image[r]
     for s, sel, scores in per_partner:
-        good = (scores[np.arange(sel.size), best[sel]] >= cfg.min_ncc) & proj.in_image[s, sel]
+        good = (scores[np.arange(sel.size), best[sel]] >= cfg.min_ncc) & in_image[s, sel]
         views[s, sel[good]] = True
     accept &= views[r] & (views.sum(axis=0) >= 2)
     if cfg.inner_ncc > -1 and accept.any():
@@ -644,7 +753,7 @@ def _densify_camera(
         # majority of disagreeing views rejects)
         disagree = np.zeros(n, np.int64)
         asked = _nearest(
-            (angles <= cfg.veto_angle_deg)[:, None] & proj.in_image & ~views & accept[None],
+            (angles <= cfg.veto_angle_deg)[:, None] & in_image & ~views & accept[None],
             angles,
             cfg.max_partners,
         )  # (C, n)

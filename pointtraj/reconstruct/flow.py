@@ -60,19 +60,24 @@ def _flow_fb(
         fwd = np.ascontiguousarray(guess, dtype=np.float32).reshape(-1, 1, 2)
         back = a.copy()
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, a, fwd, **lk)
-    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, back, **lk)
     p1 = p1.reshape(-1, 2)
-    fb = np.linalg.norm(p0b.reshape(-1, 2) - a.reshape(-1, 2), axis=1)
     h, w = img1.shape[:2]
     good = (
         (st1.ravel() == 1)
-        & (st2.ravel() == 1)
-        & (fb <= fb_max_px)
         & (p1[:, 0] >= -0.5)
         & (p1[:, 0] < w - 0.5)
         & (p1[:, 1] >= -0.5)
         & (p1[:, 1] < h - 0.5)
     )
+    # back only from where the forward flow converged inside img1 (the rest fails anyway;
+    # Lucas-Kanade tracks each point on its own, so the others' results are the same)
+    idx = np.flatnonzero(good)
+    if idx.size:
+        fwd_ok = np.ascontiguousarray(p1[idx]).reshape(-1, 1, 2)
+        back_ok = None if back is None else np.ascontiguousarray(back[idx])
+        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, fwd_ok, back_ok, **lk)
+        fb = np.linalg.norm(p0b.reshape(-1, 2) - a[idx].reshape(-1, 2), axis=1)
+        good[idx] = (st2.ravel() == 1) & (fb <= fb_max_px)
     return p1, good
 
 

@@ -38,7 +38,7 @@ import numpy as np
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
 from ..scale import SceneLength
-from .densify import _ncc, _rays, _sample, _zscore
+from .densify import _ncc_warped, _rays, _sample, _warp, _zscore
 
 __all__ = [
     "ViewsConfig",
@@ -447,36 +447,43 @@ def discover_views(
         ok = np.isfinite(std) & (std >= cfg.min_std) & np.all(np.isfinite(z), axis=1)
         ref[group] = np.where(ok[:, None], z, 0.0)
         textured[group] = ok
+    # The sweeps camera by searched camera c: the patches of all of c's reference cameras
+    # are scored in one NCC call (each row with its reference camera's warp), then projected
+    # into c at once (camera c alone: projecting into every camera is C times the work).
     pair = cs * C + rs
     order = np.argsort(pair, kind="stable")
-    single: list[CameraRig | None] = [None] * C
-    for group in np.split(order, np.flatnonzero(np.diff(pair[order])) + 1):
-        c, r = int(cs[group[0]]), int(rs[group[0]])
-        n = ns[group]
-        ok, usable, Xb, shift = _sweep(
-            rig,
-            images[c],
-            r,
-            c,
-            X[n],
-            _plane_normals(cfg, normals[n], to_cams[r, n], to_cams[c, n]),
-            ideal[r, n],
-            half[n],
-            offsets,
-            steps,
-            ref[group],
-            textured[group],
-            cfg,
-            across,
-        )
-        searched[c, n] = usable
-        if ok.any():
-            if single[c] is None:  # camera c alone (projecting into every camera is C times
-                single[c] = CameraRig([rig[c]])  # the work)
-            p = single[c].project(Xb[ok])
+    groups = np.split(order, np.flatnonzero(np.diff(pair[order])) + 1)
+    group_cam = np.array([cs[g[0]] for g in groups])
+    for chunk in np.split(np.arange(len(groups)), np.flatnonzero(np.diff(group_cam)) + 1):
+        c = int(group_cam[chunk[0]])
+        setups = []
+        for g in chunk:
+            group = groups[g]
+            r, n = int(rs[group[0]]), ns[group]
+            plane = _plane_normals(cfg, normals[n], to_cams[r, n], to_cams[c, n])
+            setups.append(
+                _sweep_setup(
+                    rig, r, c, X[n], plane, ideal[r, n], half[n], offsets, steps,
+                    textured[group], across,
+                )
+            )  # fmt: skip
+        swept = [(g, st) for g, st in zip(chunk, setups, strict=True) if st.u.size]
+        scores, which = _sweep_scores(images[c], rig, c, swept, ref, groups, len(across) > 1)
+        hits_X, hits_n, hits_shift = [], [], []
+        for (g, st), sc, wh in zip(swept, scores, which, strict=True):
+            group = groups[g]
+            n = ns[group]
+            searched[c, n] = st.usable
+            ok, Xb, shift = _sweep_finish(rig[st.r], st, sc, wh, half[n], steps, cfg)
+            if ok.any():
+                hits_X.append(Xb[ok])
+                hits_n.append(n[ok])
+                hits_shift.append(shift[ok])
+        if hits_X:
+            p = CameraRig([rig[c]]).project(np.concatenate(hits_X))
             inside = p.in_image[0]
-            sel = n[ok][inside]
-            out[c, sel] = p.pixels[0][inside] + shift[ok][inside]
+            sel = np.concatenate(hits_n)[inside]
+            out[c, sel] = p.pixels[0][inside] + np.concatenate(hits_shift)[inside]
             found += sel.size
     logger.debug("view discovery: %d of %d candidate views found", found, len(cs))
     return out, searched
@@ -504,9 +511,40 @@ def _plane_normals(
     return b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
 
 
-def _sweep(
+@dataclass
+class _SweepSetup:
+    """One (searched camera c, reference camera r) group of candidate views, ready to score.
+
+    Attributes
+    ----------
+    r : int
+        The reference camera.
+    usable : (n,) bool ndarray
+        Whose patch can be compared (textured, plane not grazing in r).
+    u : (m,) int ndarray
+        ``flatnonzero(usable)``.
+    rays : (m, P, 3) float ndarray
+        The usable patches' sample rays in r's frame, scaled to the plane (depth 1 at the
+        centre).
+    z : (n, D) float ndarray
+        Depth hypotheses in r.
+    centre_ray : (n, 3) float ndarray
+        The rays through the observations in r.
+    shifts : (m, S, 2) float ndarray or None
+        Offsets across the epipolar line in c (None without ``across``).
+    """
+
+    r: int
+    usable: np.ndarray
+    u: np.ndarray
+    rays: np.ndarray
+    z: np.ndarray
+    centre_ray: np.ndarray
+    shifts: np.ndarray | None
+
+
+def _sweep_setup(
     rig: CameraRig,
-    image: np.ndarray,
     r: int,
     c: int,
     X: np.ndarray,
@@ -515,32 +553,22 @@ def _sweep(
     half: np.ndarray,
     offsets: np.ndarray,
     steps: np.ndarray,
-    ref: np.ndarray,
     textured: np.ndarray,
-    cfg: ViewsConfig,
     across: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Sweep points seen in reference camera r for camera c (its prepared ``image``).
-
-    ``ref`` (n, P) are the z-scored reference patches, ``textured`` (n,) those usable;
-    ``across`` (S,) the offsets (pixels) across the epipolar line tried at every depth.
-
-    Returns
-    -------
-    accepted : (n,) bool ndarray
-    usable : (n,) bool ndarray
-        Whose patch could be compared (textured, plane not grazing in r).
-    best : (n, 3) float ndarray
-        The points at their best depth along r's rays through their observations.
-    shift : (n, 2) float ndarray
-        Where c sees them relative to the best point's projection (pixels, across the
-        epipolar line; 0 without ``across``).
-    """
+) -> _SweepSetup:
+    """The plane sweep of points X (n, 3) seen in reference camera r, for camera c: the
+    patches' rays on each point's plane (``normals`` (n, 3)), through its observation
+    ``ideal_r`` (n, 2), and the depths swept (``half`` (n,) times ``steps`` (D,)).
+    ``textured`` (n,) are the usable reference patches, ``across`` (S,) the offsets (pixels)
+    across the epipolar line tried at every depth."""
     cam = rig[r]
     n = len(X)
     patch = ideal_r[:, None, :] + offsets[None]  # (n, P, 2)
     usable = textured.copy()
-    none = (np.zeros(n, bool), np.zeros(n, bool), np.zeros((n, 3)), np.zeros((n, 2)))
+    none = _SweepSetup(
+        r, np.zeros(n, bool), np.zeros(0, np.int64), np.zeros((0, len(offsets), 3)),
+        np.zeros((n, len(steps))), np.zeros((n, 3)), None,
+    )  # fmt: skip
     if not usable.any():
         return none
     rays = _rays(cam, patch)  # (n, P, 3), camera frame, z = 1
@@ -557,32 +585,92 @@ def _sweep(
     # may sit a little off the point's projection)
     z = z0[:, None] + half[:, None] * steps[None, :]  # (n, D)
     u = np.flatnonzero(usable)
-    scores = np.full((n, len(steps)), -1.0)
-    shift = np.zeros((n, 2))
+    shifts = None
     if len(across) > 1:
         normal = _epipolar_normals(rig[c], cam, X[u], half[u])  # (m, 2)
         shifts = across[None, :, None] * normal[:, None, :]  # (m, S, 2)
-        scores[u], which = _ncc(image, rig[c], cam, rays[u] * w[u, :, None], z[u], ref[u], shifts)
-    else:
-        scores[u] = _ncc(image, rig[c], cam, rays[u] * w[u, :, None], z[u], ref[u])
-    D = len(steps)
+    return _SweepSetup(r, usable, u, rays[u] * w[u, :, None], z, centre_ray, shifts)
+
+
+def _sweep_scores(
+    image: np.ndarray,
+    rig: CameraRig,
+    c: int,
+    swept: list[tuple[int, _SweepSetup]],
+    ref: np.ndarray,
+    groups: list[np.ndarray],
+    shifted: bool,
+) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
+    """NCC scores of several reference cameras' sweeps into camera c (its prepared
+    ``image``), in one call (:func:`~.densify._ncc_warped`); ``swept`` holds (group index,
+    setup) pairs with usable patches, ``ref`` (K, P) the reference patches of all candidate
+    views and ``groups`` their indices per group. Returns per group the (n, D) scores (-1
+    where not usable) and, with ``shifted``, the (m, D) index of the best shift."""
+    if not swept:
+        return [], []
+    B, k, z, refs, shifts, sizes = [], [], [], [], [], []
+    for g, st in swept:
+        M, kk = _warp(rig[c], rig[st.r])
+        B.append(st.rays.astype(np.float32, copy=False) @ M.T)  # (m, P, 3)
+        k.append(np.broadcast_to(kk, (st.u.size, 3)))
+        z.append(st.z[st.u])
+        refs.append(ref[groups[g][st.u]])
+        shifts.append(st.shifts)
+        sizes.append(st.u.size)
+    ncc = _ncc_warped(
+        image, np.concatenate(B), np.concatenate(k), np.concatenate(z), np.concatenate(refs),
+        np.concatenate(shifts) if shifted else None,
+    )  # fmt: skip
+    split = np.cumsum(sizes)[:-1]
+    scores, which = [], []
+    for (_, st), part in zip(swept, np.split(ncc[0] if shifted else ncc, split), strict=True):
+        full = np.full(st.z.shape, -1.0)
+        full[st.u] = part
+        scores.append(full)
+    which = np.split(ncc[1], split) if shifted else [None] * len(swept)
+    return scores, which
+
+
+def _sweep_finish(
+    cam,
+    st: _SweepSetup,
+    scores: np.ndarray,
+    which: np.ndarray | None,
+    half: np.ndarray,
+    steps: np.ndarray,
+    cfg: ViewsConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Acceptance of one group's sweep (:func:`_sweep_setup`, scores (n, D) from
+    :func:`_sweep_scores`) in reference camera ``cam``.
+
+    Returns
+    -------
+    accepted : (n,) bool ndarray
+    best : (n, 3) float ndarray
+        The points at their best depth along r's rays through their observations.
+    shift : (n, 2) float ndarray
+        Where c sees them relative to the best point's projection (pixels, across the
+        epipolar line; 0 without shifts).
+    """
+    n, D = scores.shape
     best = np.argmax(scores, axis=1)
     top = scores[np.arange(n), best]
     far = np.abs(np.arange(D)[None, :] - best[:, None]) > cfg.peak_width
     rival = np.where(far, scores, -np.inf).max(axis=1)
     interior = (best > 0) & (best < D - 1)
-    accept = usable & interior & (top >= cfg.min_ncc) & (top - rival >= cfg.min_margin)
+    accept = st.usable & interior & (top >= cfg.min_ncc) & (top - rival >= cfg.min_margin)
     b = np.clip(best, 1, D - 2)
     y0, y1, y2 = (scores[np.arange(n), b + k] for k in (-1, 0, 1))
     with np.errstate(invalid="ignore", divide="ignore"):
         delta = np.clip(0.5 * (y0 - y2) / (y0 - 2 * y1 + y2), -0.5, 0.5)
     delta = np.where(np.isfinite(delta), delta, 0.0)
-    z_best = z[np.arange(n), b] + delta * half * (steps[1] - steps[0])
-    Xb = cam.C + (z_best[:, None] * centre_ray) @ cam.R  # (n, 3) world
-    if len(across) > 1:
-        j = which[np.arange(len(u)), best[u]]
-        shift[u] = shifts[np.arange(len(u)), j]
-    return accept, usable, Xb, shift
+    z_best = st.z[np.arange(n), b] + delta * half * (steps[1] - steps[0])
+    Xb = cam.C + (z_best[:, None] * st.centre_ray) @ cam.R  # (n, 3) world
+    shift = np.zeros((n, 2))
+    if which is not None:
+        j = which[np.arange(st.u.size), best[st.u]]
+        shift[st.u] = st.shifts[np.arange(st.u.size), j]
+    return accept, Xb, shift
 
 
 def _epipolar_normals(other, cam, X: np.ndarray, half: np.ndarray) -> np.ndarray:
