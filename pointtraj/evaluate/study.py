@@ -377,7 +377,7 @@ def _ground_truth_section(
     folder: Path,
     metrics: dict,
     progress,
-    off_surface_m: float = 0.05,
+    off_surface_m: float,
 ) -> Section:
     from ..session import Capture
     from .groundtruth import surface_errors
