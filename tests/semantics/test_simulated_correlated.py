@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import zlib
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from pointtraj.semantics.recognizers.simulated import (
     NOISE_PRESETS,
     SimulatedNoise,
     SimulatedRecognizer,
+    _class_distance,
     lateral_sides,
     noise_preset,
     simulate_confidences,
@@ -142,6 +144,94 @@ def test_independent_model_output_is_unchanged(preset, camera, frame):
         assert "".join(f"{a:x}" for a in out.argmax(axis=2).ravel()) == arg
     rec = SimulatedRecognizer(LABELS.names, LABELS.kinds, noise=preset, model="independent")
     assert rec.noise == INDEPENDENT_PRESETS[preset]
+
+
+#: simulate_confidences(<figure_map(192, 256)>, ..., <correlated preset, lengths in pixels,
+#: p_flip_front 0.5>, camera=..., frame=..., seed=3, <two figures by column>) computed with
+#: main's implementation before the faster soft boundaries (commit b2ba36c): per-class sums
+#: (rounded to 1e-3) and the CRC-32 of the argmax of every cell (int16, little-endian).
+REFERENCE_CORRELATED = {
+    ("default", "c01", 3): (
+        [492.549, 847.685, 613.134, 491.79, 642.419, 665.304, 600.38, 579.871]
+        + [617.1, 493.181, 490.77, 611.362, 491.588, 489.861, 575.377, 534.279],
+        2195433199,
+    ),
+    ("high", "c02", 40): (
+        [798.827, 1198.022, 780.84, 792.206, 983.066, 790.014, 953.254, 870.607]
+        + [801.119, 818.148, 783.664, 777.447, 781.143, 785.905, 786.403, 787.62],
+        3691462920,
+    ),
+    ("high", "c05", 7): (
+        [792.257, 790.766, 775.787, 782.058, 1080.082, 945.661, 889.729, 861.471]
+        + [784.744, 783.479, 783.251, 778.802, 945.102, 780.527, 929.893, 784.141],
+        5129697,
+    ),
+}
+
+
+@pytest.mark.parametrize("preset, camera, frame", list(REFERENCE_CORRELATED))
+def test_correlated_model_output_is_unchanged(preset, camera, frame):
+    """Regression: shifted and soft boundaries computed part by part in each part's box (and
+    the other speed-ups) give the output of the whole-crop implementation, with boundary
+    shifts, soft boundaries, figure flips by instance, a ball and false positives all on."""
+    lab = labelmaps.figure_map(LABELS, 192, 256)
+    inst = np.where(lab >= 0, 0, -1)
+    inst[:, 128:] = np.where(lab[:, 128:] >= 0, 1, -1)
+    noise = dataclasses.replace(NOISE_PRESETS[preset], length_reference_px=0.0, p_flip_front=0.5)
+    out = simulate_confidences(
+        lab,
+        LABELS.names,
+        LABELS.kinds,
+        noise,
+        camera=camera,
+        frame=frame,
+        seed=3,
+        instances=inst,
+        facing={0: 1.0, 1: 0.9},
+    )
+    sums, crc = REFERENCE_CORRELATED[(preset, camera, frame)]
+    assert out.shape == (96, 128, 16)
+    np.testing.assert_allclose(out.sum(axis=(0, 1)), sums, atol=2e-3)
+    assert zlib.crc32(out.argmax(axis=2).astype("<i2").tobytes()) == crc
+
+
+def test_part_distances_in_a_box_are_the_whole_maps():
+    """_class_distance: inside the part's widened box, the whole map's distance transform (to
+    float rounding); outside it, at least the reach. The boundary shift and the soft
+    boundaries rely on both."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        coarse = rng.integers(-1, 6, rng.integers(2, 8, 2)).astype(np.float32)
+        size = (int(rng.integers(20, 160)), int(rng.integers(20, 160)))
+        lab = cv2.resize(coarse, size, interpolation=cv2.INTER_NEAREST).astype(np.int64)
+        for k in np.unique(lab):
+            whole = cv2.distanceTransform((lab != k).astype(np.uint8), cv2.DIST_L2, 5)
+            reach = int(rng.integers(1, 30))
+            (rows, cols), d = _class_distance(lab, int(k), reach)
+            np.testing.assert_allclose(d, whole[rows, cols], rtol=1e-6)
+            outside = np.ones(lab.shape, bool)
+            outside[rows, cols] = False
+            assert (whole[outside] >= reach).all()
+            assert (lab[outside] != k).all()
+
+
+def test_blur_treats_channels_one_by_one():
+    """The body parts' blur runs on every class channel at once (objects included, then
+    zeroed): OpenCV's Gaussian blur must give each channel what it gives it alone."""
+    import cv2
+
+    rng = np.random.default_rng(1)
+    frac = rng.random((40, 56, 16)).astype(np.float32)
+    frac[frac < 0.6] = 0.0
+    for sigma in (1.0, 1.5):
+        every = cv2.GaussianBlur(frac, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
+        for k in (0, 7, 15):
+            alone = cv2.GaussianBlur(
+                np.ascontiguousarray(frac[:, :, k]), (0, 0), sigma, borderType=cv2.BORDER_REPLICATE
+            )
+            np.testing.assert_array_equal(every[:, :, k], alone)
 
 
 def test_presets_and_models():

@@ -615,7 +615,7 @@ def _figure_flips(
     """
     ids = set(facing or {})
     if instances is not None:
-        ids.update(int(i) for i in np.unique(instances) if i >= 0)
+        ids.update(int(i) for i in _present(instances))
     if not ids:
         ids = {0}
     flips = {}
@@ -643,6 +643,53 @@ def _at_image_size(noise: SimulatedNoise, H: int, W: int) -> SimulatedNoise:
     )
 
 
+def _present(values: np.ndarray) -> np.ndarray:
+    """Sorted distinct values >= 0 of a small-integer array (-1: none), like ``np.unique``."""
+    v = values.ravel()
+    if v.size == 0:
+        return np.zeros(0, np.int64)
+    hi = int(v.max())
+    if hi < 0:
+        return np.zeros(0, np.int64)
+    if hi > 1 << 20:  # sparse large ids: bincount would allocate too much
+        u = np.unique(v)
+        return u[u >= 0].astype(np.int64)
+    return np.flatnonzero(np.bincount((v + 1).astype(np.intp), minlength=hi + 2)[1:])
+
+
+def _class_box(lab: np.ndarray, k: int, reach: int) -> tuple[slice, slice]:
+    """The bounding box of class ``k``'s pixels in ``lab`` (h, w), widened by ``reach`` pixels."""
+    mask = lab == k
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    h, w = lab.shape
+    return (
+        slice(max(0, int(rows[0]) - reach), min(h, int(rows[-1]) + reach + 1)),
+        slice(max(0, int(cols[0]) - reach), min(w, int(cols[-1]) + reach + 1)),
+    )
+
+
+def _class_distance(lab: np.ndarray, k: int, reach: int) -> tuple[tuple[slice, slice], np.ndarray]:
+    """Distance to class ``k``'s pixels, in its bounding box widened by ``reach`` pixels.
+
+    Returns the box and the (bh, bw) float32 distances in it: those of
+    ``cv2.distanceTransform(lab != k, DIST_L2, 5)`` on the whole of ``lab`` (the box holds
+    every pixel of k, and a 5x5 chamfer path stays in the box of its two ends), equal or, where
+    two paths of the same length add their steps in another order, one float32 rounding apart
+    (about 4e-6 px at 30 px). Outside the box the distance is at least ``reach`` (a chamfer
+    distance is at least the larger coordinate difference).
+    """
+    import cv2
+
+    box = _class_box(lab, k, reach)
+    d = cv2.distanceTransform((lab[box] != k).astype(np.uint8), cv2.DIST_L2, 5)
+    return box, d
+
+
+#: float32 ``exp(-x)`` is exactly 0 for x >= 104; soft confidences are cut at this exponent.
+_EXP_ZERO = 105.0
+
+
 def _shift_boundaries(
     lab: np.ndarray,
     body: np.ndarray,
@@ -658,7 +705,10 @@ def _shift_boundaries(
     part p whose nearest neighbouring part q lies within ``boundary_px * |g|`` is reported as
     q where the field g (smooth, in [-1, 1], correlation length ``boundary_scale_px``) has the
     sign of the pair (p, q) (+ when p < q), so along each stretch of boundary one part
-    encroaches on the other.
+    encroaches on the other. Of equally near parts, the first in class order.
+
+    Distances are computed only within ``boundary_px`` of each part (:func:`_class_distance`):
+    no pixel farther from every neighbouring part can move.
     """
     import cv2
 
@@ -668,20 +718,19 @@ def _shift_boundaries(
     field = cv2.resize(coarse.astype(np.float32), (W, H), interpolation=cv2.INTER_CUBIC)
     y0, x0 = origin
     g = np.clip(field[y0 : y0 + lab.shape[0], x0 : x0 + lab.shape[1]], -1.0, 1.0)  # (h, w)
-    present = [k for k in np.unique(lab) if k >= 0 and body[k]]
+    present = [int(k) for k in _present(lab) if body[k]]
     if len(present) < 2:
         return lab
-    dist = np.stack(
-        [cv2.distanceTransform((lab != k).astype(np.uint8), cv2.DIST_L2, 5) for k in present]
-    )  # (n, h, w)
-    present_arr = np.asarray(present)
     own = np.where(lab >= 0, lab, 0)
     is_body = (lab >= 0) & body[own]
-    nbr_mask = neighbour[own][:, :, present_arr].transpose(2, 0, 1)  # (n, h, w)
-    d = np.where(nbr_mask, dist, np.inf)
-    q_i = d.argmin(axis=0)
-    dq = np.take_along_axis(d, q_i[None], 0)[0]  # (h, w)
-    q = present_arr[q_i]
+    reach = int(np.ceil(noise.boundary_px)) + 1
+    dq = np.full(lab.shape, np.inf, np.float32)  # distance to the nearest neighbouring part
+    q = np.zeros(lab.shape, np.int64)  # ... and that part
+    for k in present:  # in class order, so ties keep the first part
+        box, d = _class_distance(lab, k, reach)
+        nearer = neighbour[own[box], k] & (d < dq[box])
+        dq[box][nearer] = d[nearer]
+        q[box][nearer] = k
     sign = np.where(own < q, 1.0, -1.0)
     move = is_body & np.isfinite(dq) & (sign * g > 0) & (dq < noise.boundary_px * np.abs(g))
     out = lab.copy()
@@ -790,16 +839,14 @@ def simulate_confidences(
             noise, facing, instances, seed=seed, camera=camera, block=block, frame=frame
         )
         lut_flip = _confusion_lut(not flip, u, pick, noise, mirror, neighbours, is_object)
-        table = np.stack([lut1, np.concatenate([[0], lut_flip + 1])])  # (2, K + 1)
+        lut_flip1 = np.concatenate([[0], lut_flip + 1])
+        flipped = sorted(i for i, f in flips.items() if f)
         if instances is None:
-            row = np.full(lab64.shape, int(flips[min(flips)]), np.int64)
+            code = (lut_flip1 if flips[min(flips)] else lut1)[lab64]  # (H * W,) in 0..K
+        elif not flipped:
+            code = lut1[lab64]
         else:
-            ids = np.array(sorted(flips), np.int64)
-            state = np.array([flips[i] for i in ids], np.int64)
-            inst = instances.ravel().astype(np.int64)
-            pos = np.clip(np.searchsorted(ids, inst), 0, len(ids) - 1)
-            row = np.where(ids[pos] == inst, state[pos], 0)  # (H * W,)
-        code = table[row, lab64]  # (H * W,) in 0..K
+            code = np.where(np.isin(instances.ravel(), flipped), lut_flip1[lab64], lut1[lab64])
     else:
         code = lut1[lab64]  # (H * W,) in 0..K
     cell = _cell_index(H, W, h, w)
@@ -808,27 +855,38 @@ def simulate_confidences(
         code, soft = _soft_boundaries(
             code, (H, W), ~is_object, neighbours, _at_image_size(noise, H, W), seed, camera, block
         )
+    # Each cell's share of each class: its pixel count over the cell's pixels, or with soft
+    # boundaries the mean of the part's soft confidence. The soft sums are taken in pixel
+    # order and divided in float64, then rounded to float32, in the cells of the rows that
+    # hold the parts (outside them, a part's soft confidence and pixel count are both 0).
     counts = np.bincount(cell * (K + 1) + code, minlength=h * w * (K + 1))
     per_cell = np.bincount(cell, minlength=h * w).astype(np.float32)
-    frac = counts.reshape(h * w, K + 1)[:, 1:].astype(np.float32) / per_cell[:, None]
+    frac = counts.reshape(h * w, K + 1)[:, 1:].astype(np.float32)
+    frac /= per_cell[:, None]  # (h * w, K)
+    if soft:
+        rows = (np.array([[b[0], b[1] - 1] for _, b, _ in soft]) * h) // H  # cell rows
+        n0, n1 = int(rows[:, 0].min()) * w, (int(rows[:, 1].max()) + 1) * w
+        cells = cell.reshape(H, W)
+        bins = [cells[r0:r1, c0:c1].ravel() * K + (k - n0 * K) for k, (r0, r1, c0, c1), _ in soft]
+        sums = np.bincount(
+            np.concatenate(bins),
+            weights=np.concatenate([conf.ravel() for *_, conf in soft]),
+            minlength=(n1 - n0) * K,
+        ).reshape(n1 - n0, K)
+        is_soft = np.zeros(K, bool)
+        is_soft[[k for k, *_ in soft]] = True
+        frac[n0:n1] = np.where(is_soft, sums / per_cell[n0:n1, None], frac[n0:n1])
     frac = frac.reshape(h, w, K)  # (h, w, K)
-    if soft is not None:  # soft boundaries: the cell mean of each part's soft confidence
-        (y0, y1, x0, x1), conf, classes = soft
-        sub = cell.reshape(H, W)[y0:y1, x0:x1].ravel()
-        for i, k in enumerate(classes):
-            frac[:, :, k] = (
-                np.bincount(sub, weights=conf[i].ravel(), minlength=h * w) / per_cell
-            ).reshape(h, w)
 
-    out = np.zeros((h, w, K), dtype=np.float32)
-    body = np.flatnonzero(~is_object)
-    if body.size:
-        dense = np.ascontiguousarray(frac[:, :, body])
-        if noise.blur_sigma > 0:
-            dense = cv2.GaussianBlur(
-                dense, (0, 0), noise.blur_sigma, borderType=cv2.BORDER_REPLICATE
-            ).reshape(h, w, body.size)
-        out[:, :, body] = dense * peak[body]
+    # Body parts: blurred, scaled by their peak. Objects: 0 here, boxes below. (The blur
+    # treats channels one by one, so blurring the objects' too changes no body channel.)
+    gain = np.where(is_object, np.float32(0.0), peak)  # (K,)
+    if noise.blur_sigma > 0 and not is_object.all():
+        out = cv2.GaussianBlur(frac, (0, 0), noise.blur_sigma, borderType=cv2.BORDER_REPLICATE)
+        out = out.reshape(h, w, K)
+        out *= gain
+    else:
+        out = frac * gain
 
     px = _seed(seed, camera, int(frame), 1)
 
@@ -863,7 +921,10 @@ def simulate_confidences(
 
     # 5. Low overall noise.
     if noise.noise_std > 0:
-        out += np.abs(px.standard_normal((h, w, K), dtype=np.float32)) * np.float32(noise.noise_std)
+        z = px.standard_normal((h, w, K), dtype=np.float32)
+        np.abs(z, out=z)
+        z *= np.float32(noise.noise_std)
+        out += z
     np.clip(out, 0.0, 1.0, out=out)
     return out
 
@@ -877,56 +938,59 @@ def _soft_boundaries(
     seed: int,
     camera: str,
     block: int,
-) -> tuple[np.ndarray, tuple | None]:
+) -> tuple[np.ndarray, list[tuple[int, tuple[int, int, int, int], np.ndarray]] | None]:
     """Shifted part boundaries and the body parts' soft confidences, inside the figures' box.
 
     Parameters
     ----------
     code : (H * W,) int64 ndarray
-        Reported class + 1 per pixel (0: background).
+        Reported class + 1 per pixel (0: background). Changed in place by the shift.
 
     Returns
     -------
     code : (H * W,) int64 ndarray
         After :func:`_shift_boundaries`.
-    soft : ((y0, y1, x0, x1), (n, y1 - y0, x1 - x0) float32 ndarray, list of n int) or None
-        The box, ``exp(-(d_k / softness_px)^2)`` on body pixels for each body class k present
-        (``d_k`` the distance to class k's pixels, 0 inside), and the classes; None without
-        softness or body pixels.
+    soft : list of (int, (r0, r1, c0, c1), (r1 - r0, c1 - c0) float32 ndarray) or None
+        For each body class k present, in class order: k, a box of image rows and columns
+        and, in it, ``exp(-(d_k / softness_px)^2)`` on body pixels (``d_k`` the distance to
+        class k's pixels, 0 inside). Outside its box the value is 0 (it underflows there, as
+        float32 does beyond ``d_k = sqrt(104) softness_px``). None without softness or body
+        pixels.
     """
-    import cv2
-
     H, W = shape
-    lab = code.reshape(H, W) - 1
-    is_body = (lab >= 0) & body[np.maximum(lab, 0)]
-    rows, cols = np.nonzero(is_body)
+    lab = code.reshape(H, W)  # class + 1: a view, so the shift below changes ``code``
+    is_body = np.concatenate([[False], body])[lab]
+    rows = np.flatnonzero(is_body.any(axis=1))
     if rows.size == 0:
         return code, None
+    cols = np.flatnonzero(is_body.any(axis=0))
     pad = int(np.ceil(noise.boundary_px + 3 * noise.softness_px)) + 2
-    y0, y1 = max(0, rows.min() - pad), min(H, rows.max() + pad + 1)
-    x0, x1 = max(0, cols.min() - pad), min(W, cols.max() + pad + 1)
-    sub = lab[y0:y1, x0:x1]
+    y0, y1 = max(0, int(rows[0]) - pad), min(H, int(rows[-1]) + pad + 1)
+    x0, x1 = max(0, int(cols[0]) - pad), min(W, int(cols[-1]) + pad + 1)
+    sub = lab[y0:y1, x0:x1] - 1
     if noise.boundary_px > 0:
         K = len(body)
         neighbour = np.zeros((K, K), bool)
         for k, js in enumerate(neighbours):
             neighbour[k, js] = True
         rng = _seed(seed, camera, block, 4)
-        sub = _shift_boundaries(sub, body, neighbour, noise, rng, (H, W), (int(y0), int(x0)))
-        lab = lab.copy()
-        lab[y0:y1, x0:x1] = sub
-        code = (lab + 1).ravel()
+        sub = _shift_boundaries(sub, body, neighbour, noise, rng, (H, W), (y0, x0))
+        lab[y0:y1, x0:x1] = sub + 1
     if noise.softness_px <= 0:
         return code, None
     own = np.where(sub >= 0, sub, 0)
     sub_body = (sub >= 0) & body[own]
-    classes = [int(k) for k in np.unique(sub) if k >= 0 and body[k]]
-    conf = np.zeros((len(classes), *sub.shape), np.float32)
     inv = np.float32(1.0 / noise.softness_px)
-    for i, k in enumerate(classes):
-        d = cv2.distanceTransform((sub != k).astype(np.uint8), cv2.DIST_L2, 5)
-        conf[i] = np.where(sub_body, np.exp(-np.square(d * inv)), 0.0)
-    return code, ((int(y0), int(y1), int(x0), int(x1)), conf, classes)
+    reach = int(np.ceil(np.sqrt(_EXP_ZERO) * noise.softness_px)) + 1
+    soft = []
+    for k in _present(sub):
+        if not body[k]:
+            continue
+        (rs, cs), d = _class_distance(sub, int(k), reach)
+        conf = np.where(sub_body[rs, cs], np.exp(-np.square(d * inv)), 0.0)
+        box = (y0 + rs.start, y0 + rs.stop, x0 + cs.start, x0 + cs.stop)
+        soft.append((int(k), box, conf))
+    return code, soft
 
 
 def _fill_box(channel: np.ndarray, x0: float, y0: float, x1: float, y1: float, conf: float) -> None:
