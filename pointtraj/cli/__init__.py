@@ -65,5 +65,14 @@ class LazyGroup(click.Group):
 def main(verbose: int) -> None:
     """Dense 3D semantic trajectories from synchronised multi-camera video."""
     level = logging.WARNING - 10 * min(verbose, 2)
+    before = set(logging.getLogger().handlers)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("pointtraj").setLevel(level)
+    for handler in set(logging.getLogger().handlers) - before:  # the console's, not a host's
+        handler.addFilter(_not_health_warning)
+
+
+def _not_health_warning(record: logging.LogRecord) -> bool:
+    """Drop the report's health warnings from the console log: the commands that run the
+    evaluation (``run``, ``demo``, ``evaluate``) list them at the end, where they are read."""
+    return not getattr(record, "health_warning", False)

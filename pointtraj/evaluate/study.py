@@ -913,8 +913,8 @@ def _health_section(wf: WorkFolder, cap: Path, traj, labels, metrics: dict) -> S
     metrics.update(check_health(traj, rig, cap, rc, labels, th))
     warnings = health_warnings(metrics, th)
     metrics["health.warnings"] = warnings
-    for w in warnings:
-        logger.warning("health: %s", w)
+    for w in warnings:  # the CLI lists them at the end instead (it drops these records)
+        logger.warning("health: %s", w, extra={"health_warning": True})
     m = metrics.get
     lines = (
         [f"- **warning**: {w}" for w in warnings]

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -244,6 +247,18 @@ def test_a_one_pair_run_warns_at_the_end(two_camera_capture):
         <= metrics["validity.support.sampled_point_frames"]
     )
     assert "point-frames compared" in index
+    # On the console each warning comes once, at the end, not also in the log above it.
+    proc = subprocess.run(
+        [sys.executable, "-m", "pointtraj", "evaluate", str(tmp / "work")],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])},
+    )
+    assert proc.returncode == 0, proc.stderr
+    console = proc.stdout + proc.stderr
+    assert "health: " in proc.stdout
+    for w in metrics["health.warnings"]:
+        assert console.count(w) == 1, console
 
 
 #: A healthy run that is cheap: the ground-truth trajectories of 2 frames of the demo's rig
