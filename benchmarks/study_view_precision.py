@@ -1,0 +1,140 @@
+"""Where the wrong views are: view precision by the true surface's incidence angle (issue #20).
+
+Usage (from the repository root)::
+
+    .venv/bin/python benchmarks/study_view_precision.py CAPTURE WORK [--every 3]
+        [--samples 3000] [--radius 0.03] [--depth-tol 0.01]
+
+The audit of :mod:`pointtraj.evaluate.views` (a view is truly visible when the camera's depth
+map sees the point's nearest ground-truth sample, within ``--depth-tol``), with samples drawn
+afresh, ``--samples`` per part from the scene's meshes, so that each carries its triangle's
+normal. For every observed view of an actor point it takes the angle between that normal and
+the direction to the camera, and prints the views, their precision and the true views' recall
+by angle. Then, for comparison, what dropping views beyond an angle to the *fitted* normal
+(:func:`pointtraj.reconstruct.views.point_normals`, the one the tracker has) would give.
+The figures of ``docs/reconstruction.md``, "Where the wrong views are".
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+BINS = (0, 30, 45, 60, 70, 80, 90, 180)
+FITTED = (60, 70, 80, 90, 180)
+
+
+def dense_samples(
+    capture: Path, per_part: int
+) -> tuple[object, np.ndarray, np.ndarray, np.ndarray]:
+    """The capture's scene (posed by ``scene.poses(t / fps)``), and ``per_part`` samples per
+    labelled geometry: geometry index (M,), local points (M, 3) and local normals (M, 3)."""
+    from pointtraj.config import load_toml
+    from pointtraj.synth.scenes import make_scene, scale_scene
+
+    doc = load_toml(capture / "gt" / "synth.toml")
+    scene = make_scene(str(doc["scene"]), int(doc["seed"]))
+    if "scale" in doc:
+        from pointtraj.synth.presets import PRESETS
+
+        scene = scale_scene(scene, float(doc["scale"]), PRESETS[str(doc["preset"])].target)
+    rng = np.random.default_rng(5)
+    geo, loc, nrm = [], [], []
+    for g, geom in enumerate(scene.geometries):
+        if geom.label < 0:
+            continue
+        pts, tri = geom.mesh.sample_surface(per_part, rng)
+        c = geom.mesh.vertices[geom.mesh.triangles[tri]]  # (n, 3, 3)
+        n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+        geo.append(np.full(len(pts), g))
+        loc.append(pts)
+        nrm.append(n / np.linalg.norm(n, axis=1, keepdims=True))
+    return scene, np.concatenate(geo), np.concatenate(loc), np.concatenate(nrm)
+
+
+def main() -> None:
+    from scipy.spatial import cKDTree
+
+    from pointtraj.config import load_toml
+    from pointtraj.evaluate.views import true_visibility
+    from pointtraj.reconstruct.views import _directions, point_normals
+    from pointtraj.session import Capture
+    from pointtraj.trajectories import Trajectories, dequantize_visibility
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("capture", type=Path)
+    ap.add_argument("work", type=Path)
+    ap.add_argument("--every", type=int, default=3, help="audit every n-th frame")
+    ap.add_argument("--samples", type=int, default=3000, help="ground-truth samples per part")
+    ap.add_argument("--radius", type=float, default=0.03)
+    ap.add_argument("--depth-tol", type=float, default=0.01)
+    ap.add_argument("--neighbors", type=int, default=12, help="of the fitted normals")
+    args = ap.parse_args()
+
+    scene, geo, loc, nrm = dense_samples(args.capture, args.samples)
+    fps = float(load_toml(args.capture / "gt" / "synth.toml")["fps"])
+    traj = Trajectories.load(args.work / "trajectories.npz")
+    rig = Capture.open(args.capture).rig.subset(traj.camera_names)
+    nb = len(BINS) - 1
+    obs_n, hit_n, true_n = np.zeros(nb), np.zeros(nb), np.zeros(nb)
+    fit_obs, fit_hit = np.zeros(len(FITTED)), np.zeros(len(FITTED))
+    total_true = 0
+    for t in range(0, traj.num_frames, args.every):
+        rows = traj.frame_rows(t)
+        if not len(rows):
+            continue
+        poses = scene.poses(t / fps)
+        R = poses[geo, :3, :3]
+        xyz = np.einsum("mij,mj->mi", R, loc) + poses[geo, :3, 3]
+        normal = np.einsum("mij,mj->mi", R, nrm)
+        X = traj.xyz[rows].astype(np.float64)
+        observed = dequantize_visibility(traj.visibility[rows]) > 0.05  # (N, C)
+        dist, idx = cKDTree(xyz).query(X)
+        actor = dist <= args.radius
+        s, sn = xyz[idx[actor]], normal[idx[actor]]
+        vis, _ = true_visibility(args.capture, rig, t, s, args.depth_tol)  # (A, C)
+        obs = observed[actor]
+        to_cam = _directions(rig, s)  # (C, A, 3)
+        angle = np.degrees(np.arccos(np.clip(np.einsum("cak,ak->ac", to_cam, sn), -1, 1)))
+        b = np.digitize(angle, BINS) - 1
+        for i in range(nb):
+            obs_n[i] += (obs & (b == i)).sum()
+            hit_n[i] += (obs & vis & (b == i)).sum()
+            true_n[i] += (vis & (b == i)).sum()
+        total_true += vis.sum()
+        fitted = point_normals(rig, X, observed.T, args.neighbors)
+        cos_fit = np.einsum("cnk,nk->nc", _directions(rig, X), fitted)[actor]
+        fit_angle = np.degrees(np.arccos(np.clip(cos_fit, -1, 1)))
+        for i, th in enumerate(FITTED):
+            keep = obs & (fit_angle <= th)
+            fit_obs[i] += keep.sum()
+            fit_hit[i] += (keep & vis).sum()
+    print(
+        f"observed views of actor points by the true surface's incidence ({args.samples} "
+        f"samples a part, every {args.every} frames):"
+    )
+    print("| incidence | observed views | precision | true views | recall |")
+    print("|---|---:|---:|---:|---:|")
+    for i in range(nb):
+        print(
+            f"| {BINS[i]}-{BINS[i + 1]} deg | {int(obs_n[i]):,} | {hit_n[i] / max(obs_n[i], 1):.3f} "
+            f"| {int(true_n[i]):,} | {hit_n[i] / max(true_n[i], 1):.3f} |"
+        )
+    print(
+        f"| all | {int(obs_n.sum()):,} | {hit_n.sum() / max(obs_n.sum(), 1):.3f} "
+        f"| {int(true_n.sum()):,} | {hit_n.sum() / max(true_n.sum(), 1):.3f} |"
+    )
+    print("\ndropping observed views beyond an angle to the fitted normal:")
+    print("| views kept up to | views kept | precision | recall |")
+    print("|---|---:|---:|---:|")
+    for i, th in enumerate(FITTED):
+        print(
+            f"| {th} deg | {int(fit_obs[i]):,} | {fit_hit[i] / max(fit_obs[i], 1):.3f} "
+            f"| {fit_hit[i] / max(total_true, 1):.3f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
