@@ -250,6 +250,7 @@ def check_health(
     reconstruct_config=None,
     labels=None,
     thresholds: HealthThresholds | None = None,
+    up: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """The health figures of a reconstruction (and its labels).
 
@@ -266,6 +267,9 @@ def check_health(
     labels : TrajectoryLabels, optional
         The graph cut's labels.
     thresholds : HealthThresholds, optional
+    up : (3,) float ndarray, optional
+        The world's up direction (``capture.toml`` ``up``) for the floor under the labelled
+        feet; default: detected from the cameras (:func:`pointtraj.geometry.detect_up`).
 
     Returns
     -------
@@ -293,7 +297,11 @@ def check_health(
     if floor is None and labels is not None and P:  # a real rig: the floor under the feet
         from ..geometry import detect_up
 
-        up, how = detect_up(rig)
+        if up is None:
+            up, how = detect_up(rig)
+        else:
+            up = np.asarray(up, np.float64) / np.linalg.norm(up)
+            how = "capture.toml up"
         height = floor_from_feet(trajectories, labels, up, th.below_floor_m / 2)
         if height is not None:
             floor, source = (up, height), "feet"

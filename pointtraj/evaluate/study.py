@@ -908,9 +908,10 @@ def _health_section(wf: WorkFolder, cap: Path, traj, labels, metrics: dict) -> S
     from .health import HealthThresholds, check_health, health_warnings, known_floor
 
     th = scale_lengths(HealthThresholds(), work_scene_scale(wf), "[health]")
-    rig = Capture.open(cap).rig.subset(traj.camera_names)
+    capture = Capture.open(cap)
+    rig = capture.rig.subset(traj.camera_names)
     rc = _reconstruct_config(wf)
-    metrics.update(check_health(traj, rig, cap, rc, labels, th))
+    metrics.update(check_health(traj, rig, cap, rc, labels, th, up=capture.up))
     warnings = health_warnings(metrics, th)
     metrics["health.warnings"] = warnings
     for w in warnings:  # the CLI lists them at the end instead (it drops these records)

@@ -189,6 +189,24 @@ def test_a_real_rig_gets_its_floor_from_the_feet():
     assert "health.below_floor_share" not in check_health(store, rig, None)
 
 
+def test_the_captures_up_direction_is_used_for_the_feet_floor():
+    """A world whose up is -y (a camera's frame, as caliscope writes it) while the cameras'
+    ring would say +z: with capture.toml's ``up`` the floor under the feet is found."""
+    store, labels, under = _feet_store()
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # +z -> -y
+    turned = Trajectories.from_dense(
+        (store.xyz.reshape(-1, 3, 3).astype(np.float64) @ R.T),
+        np.ones((store.num_trajectories, 3, 4)),
+        camera_names=store.camera_names,
+    )
+    rig = ring_rig(4, names="cam{i:02d}")
+    m = check_health(turned, rig, None, labels=labels, up=np.array([0.0, -2.0, 0.0]))
+    assert m["health.floor"] == "feet" and 0.0 <= m["health.floor_height_m"] <= 0.025
+    assert m["health.below_floor_share"] == pytest.approx(under / store.num_trajectories)
+    detected = check_health(turned, rig, None, labels=labels)  # the rig's +z: wrong here
+    assert detected.get("health.below_floor_share") != m["health.below_floor_share"]
+
+
 def test_observed_views_is_the_store_count():
     rng = np.random.default_rng(1)
     vis = rng.integers(0, 256, (1000, 6)).astype(np.uint8)
