@@ -651,7 +651,7 @@ def _present(values: np.ndarray) -> np.ndarray:
     hi = int(v.max())
     if hi < 0:
         return np.zeros(0, np.int64)
-    if hi > 1 << 20:  # sparse large ids: bincount would allocate too much
+    if hi > 1 << 20 or int(v.min()) < -1:  # large ids (bincount's size) or other negatives
         u = np.unique(v)
         return u[u >= 0].astype(np.int64)
     return np.flatnonzero(np.bincount((v + 1).astype(np.intp), minlength=hi + 2)[1:])
