@@ -437,8 +437,8 @@ def test_sigint_stops_a_run_cleanly_and_it_resumes(reference, tmp_path):
             time.sleep(0.3)
             proc.send_signal(signal.SIGINT)
             break
-    proc.communicate(timeout=600)
-    assert proc.returncode != 0
+    _, rest = proc.communicate(timeout=600)
+    assert proc.returncode != 0, rest[-3000:]
     assert not list(work.rglob(TEMP_PREFIX + "*"))
     res = _run_cli(["run", "pipe.toml"], cwd=root)
     assert res.returncode == 0, res.stderr
