@@ -431,6 +431,9 @@ def test_sigint_stops_a_run_cleanly_and_it_resumes(reference, tmp_path):
         cwd=root,
         stderr=subprocess.PIPE,
         text=True,
+        # A shell's background job ignores SIGINT, and Python keeps an inherited SIG_IGN: give
+        # the run the default, so that Ctrl-C reaches it however the tests were started.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     for line in proc.stderr:
         if line.startswith("semantics"):
