@@ -268,7 +268,7 @@ def work_scene_scale(work: Any) -> SceneScale:
     SceneScale
         Factor 1 (the defaults), without a log line, when ``work.toml`` records no capture.
     """
-    from .session import Capture
+    from .rigio import load_rig
     from .workdir import WorkFolder
 
     wf = work if isinstance(work, WorkFolder) else WorkFolder(work)
@@ -285,4 +285,5 @@ def work_scene_scale(work: Any) -> SceneScale:
         return SceneScale(1.0, float("nan"), np.full((2, 3), np.nan), "no capture")
     params = wf.run_identity().get("reconstruct")
     volume = params.get("capture_volume") if isinstance(params, dict) else None
-    return scene_scale(Capture.open(capture).rig, volume)
+    # The rig alone: opening the capture would read an image of every camera to check it.
+    return scene_scale(load_rig(capture / "rig.toml", fmt="toml"), volume)
