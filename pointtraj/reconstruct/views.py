@@ -622,7 +622,7 @@ def _sweep_scores(
         np.concatenate(shifts) if shifted else None,
     )  # fmt: skip
     split = np.cumsum(sizes)[:-1]
-    scores, which = [], []
+    scores = []
     for (_, st), part in zip(swept, np.split(ncc[0] if shifted else ncc, split), strict=True):
         full = np.full(st.z.shape, -1.0)
         full[st.u] = part
