@@ -46,6 +46,7 @@ def occlusion_test(
     *,
     cell_px: float | None = None,
     projection: Projection | None = None,
+    occluders: np.ndarray | None = None,
 ) -> np.ndarray:
     """Find points hidden behind the frame's own reconstructed surface, per camera.
 
@@ -78,6 +79,11 @@ def occlusion_test(
         adapts to the point density and image resolution.
     projection : Projection, optional
         ``rig.project(points)``, when the caller has it already.
+    occluders : (N,) bool ndarray, optional
+        The points that can hide others (default: all). The others are tested but hide
+        nothing, e.g. points that the cameras which should see them do not confirm
+        (:func:`~.views.refuted`): a few points floating off the surface otherwise hide every
+        view behind them.
 
     Returns
     -------
@@ -112,6 +118,8 @@ def occlusion_test(
     if cell_px is not None and not cell_px > 0:
         raise ValidationError(f"cell_px must be > 0, got {cell_px!r}")
     C, N = len(rig), X.shape[0]
+    if occluders is not None and np.shape(occluders) != (N,):
+        raise ValidationError(f"occluders: expected ({N},) bools, got shape {np.shape(occluders)}")
     proj = rig.project(X) if projection is None else projection
     if proj.depth.shape != (C, N):
         raise ValidationError(f"projection: expected ({C}, {N}) depths, got {proj.depth.shape}")
@@ -127,7 +135,8 @@ def occlusion_test(
     cell = base[:-1, None] + cy * gw[:, None] + cx  # (C, N)
     half = np.broadcast_to(tol / 2, (N,))[None, :]  # (1, N)
     zbuf = np.full(int(base[-1]), np.inf)
-    np.minimum.at(zbuf, cell[ok], (proj.depth + half)[ok])  # nearest far end per cell
+    hide = ok if occluders is None else ok & np.asarray(occluders, bool)[None, :]
+    np.minimum.at(zbuf, cell[hide], (proj.depth + half)[hide])  # nearest far end per cell
     front = zbuf[cell]  # (C, N)
     occluded = ok & (proj.depth - half > front)
     logger.debug("occlusion test: %d of %d point-views occluded", int(occluded.sum()), C * N)

@@ -30,7 +30,14 @@ from .config import ReconstructConfig
 from .flow import expand_views, to_grey, track_flow
 from .matching import MultiViewTracks, match_frame, resolve_ambiguous
 from .survive import carry_one_view, predict_rigid
-from .views import depth_uncertainty, discover_views, record_misses, retry_due, retry_periods
+from .views import (
+    depth_uncertainty,
+    discover_views,
+    record_misses,
+    refuted,
+    retry_due,
+    retry_periods,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from .triangulate import Triangulation
@@ -466,7 +473,10 @@ class Tracker:
             cover = np.where(tri_old.inliers[..., None], obs, np.nan)[:, keep_old]
             if self._cover_visible and keep_old.any():
                 live_proj, cover = self._cover_pixels(
-                    tri_old.points[keep_old], tri_old.visibility[keep_old], cover
+                    tri_old.points[keep_old],
+                    tri_old.visibility[keep_old],
+                    cover,
+                    st.misses[keep_old],
                 )
             new_pix = np.where(new_tri.inliers[..., None], new_obs, np.nan)
             covered = covered_by(cover, new_pix, cfg.cover_px, cfg.cover_views)
@@ -504,7 +514,7 @@ class Tracker:
             misses, proj = misses[keep], _take_projection(proj, keep)
         enough = np.count_nonzero(vis > cfg.visibility_threshold, axis=1) >= cfg.min_views
         if len(xyz):
-            vis = np.where(self._occluded(xyz, vis, proj), np.float32(0), vis)
+            vis = np.where(self._occluded(xyz, vis, proj, misses), np.float32(0), vis)
         views = np.count_nonzero(vis > cfg.visibility_threshold, axis=1)
         seen = views >= cfg.min_views
         lone = np.zeros(len(xyz), np.int64)  # frames on fewer than two views, after this one
@@ -639,7 +649,7 @@ class Tracker:
         C, N, n_old = len(self.rig), len(xyz), len(old_ids)
         if proj is None:
             proj = self.rig.project(xyz)
-        cand = proj.in_image & ~self._occluded(xyz, vis, proj).T
+        cand = proj.in_image & ~self._occluded(xyz, vis, proj, misses).T
         due = np.ones((C, N), bool)
         if n_old:
             every, max_every = retry_periods(cfg.views, C)
@@ -767,7 +777,7 @@ class Tracker:
         self.stops["visibility"] += int((ended & kept & ~after).sum())
 
     def _cover_pixels(
-        self, xyz: np.ndarray, vis: np.ndarray, pix: np.ndarray
+        self, xyz: np.ndarray, vis: np.ndarray, pix: np.ndarray, misses: np.ndarray | None = None
     ) -> tuple[Projection, np.ndarray]:
         """Where the live points cover the images (``cover_visible``).
 
@@ -777,6 +787,8 @@ class Tracker:
         vis : (N, C) float ndarray
         pix : (C, N, 2) float ndarray
             Their observations (NaN where absent).
+        misses : (N, C) uint8 ndarray, optional
+            View discovery's failure counts (refuted points hide nothing).
 
         Returns
         -------
@@ -795,21 +807,39 @@ class Tracker:
         seen = np.all(np.isfinite(pix), axis=2)
         to_cams = _directions(self.rig, xyz).astype(np.float32)  # (C, N, 3)
         front = np.einsum("cnk,nk->cn", to_cams, _facing(seen, to_cams)) > 0
-        visible = proj.in_image & front & ~self._occluded(xyz, vis, proj).T  # (C, N)
+        visible = proj.in_image & front & ~self._occluded(xyz, vis, proj, misses).T  # (C, N)
         cover = np.where(seen[..., None], pix, np.where(visible[..., None], proj.pixels, np.nan))
         return proj, cover
 
-    def _occluded(self, xyz: np.ndarray, vis: np.ndarray, projection=None) -> np.ndarray:
+    def _occluded(
+        self,
+        xyz: np.ndarray,
+        vis: np.ndarray,
+        projection: Projection | None = None,
+        misses: np.ndarray | None = None,
+    ) -> np.ndarray:
         """(N, C) views of the frame's points hidden behind its own surface (all False when
-        the test is off): :func:`~.occlusion.occlusion_test`."""
+        the test is off): :func:`~.occlusion.occlusion_test`. With view discovery's failure
+        counts ``misses`` (N, C), the points they refute (:func:`~.views.refuted`) hide
+        nothing."""
         from .occlusion import occlusion_test
 
         cfg = self.config
         if cfg.occlusion_depth_m <= 0 or len(xyz) == 0:
             return np.zeros((len(xyz), len(self.rig)), bool)
-        tol = occlusion_tolerance(cfg, self.rig, xyz, (vis > cfg.visibility_threshold).T)
+        observed = (vis > cfg.visibility_threshold).T  # (C, N)
+        tol = occlusion_tolerance(cfg, self.rig, xyz, observed)
+        occluders = None
+        if misses is not None and cfg.views.enabled:
+            occluders = ~refuted(misses, observed.sum(axis=0), cfg.views)
+            logger.debug("occlusion test: %d refuted points hide nothing", (~occluders).sum())
         return occlusion_test(
-            self.rig, xyz, tol, cell_px=cfg.occlusion_cell_px, projection=projection
+            self.rig,
+            xyz,
+            tol,
+            cell_px=cfg.occlusion_cell_px,
+            projection=projection,
+            occluders=occluders,
         )
 
     def _alive(self, tri: Triangulation) -> np.ndarray:
