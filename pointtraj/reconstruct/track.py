@@ -33,6 +33,7 @@ from .survive import carry_one_view, predict_rigid
 from .views import (
     depth_uncertainty,
     discover_views,
+    grazing_views,
     record_misses,
     refuted,
     retry_due,
@@ -512,6 +513,11 @@ class Tracker:
             )
             xyz, vis, err, pix = xyz[keep], vis[keep], err[keep], pix[:, keep]
             misses, proj = misses[keep], _take_projection(proj, keep)
+            if cfg.views.drop_grazing and len(xyz):
+                drop = grazing_views(rig, xyz, (vis > cfg.visibility_threshold).T, cfg.views)
+                vis = np.where(drop.T, np.float32(0), vis)
+                pix = np.where(drop[..., None], np.nan, pix)
+                logger.debug("frame %d: %d grazing views dropped", t, int(drop.sum()))
         enough = np.count_nonzero(vis > cfg.visibility_threshold, axis=1) >= cfg.min_views
         if len(xyz):
             vis = np.where(self._occluded(xyz, vis, proj, misses), np.float32(0), vis)

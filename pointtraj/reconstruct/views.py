@@ -43,6 +43,7 @@ from .densify import _ncc_warped, _rays, _sample, _warp, _zscore
 __all__ = [
     "ViewsConfig",
     "discover_views",
+    "grazing_views",
     "refuted",
     "point_normals",
     "depth_uncertainty",
@@ -84,7 +85,7 @@ class ViewsConfig:
         Bounds of the half-range swept.
     max_incidence_deg : float
         A camera that sees the point's surface at a more grazing angle (or from behind) is not
-        searched.
+        searched, and with ``drop_grazing`` a view observed at such an angle is dropped.
     normal_neighbors : int
         Neighbours of a point that its surface normal is fitted to.
     retry_every : int
@@ -120,6 +121,12 @@ class ViewsConfig:
         A new point left with two views is dropped when another camera was searched for it
         with a usable patch and did not confirm it (two views always agree with a wrong match
         along the epipolar line; a third decides).
+    drop_grazing : bool
+        After the search, a tracked or new point drops the views it observes beyond
+        ``max_incidence_deg`` to its fitted normal, where it keeps at least 3 views
+        (:func:`grazing_views`): tracking carries a view on while the surface turns away, and
+        such views are the wrong ones (on paper69, observed views at 80-90 degrees to the true
+        surface are right in 71 % of cases, from behind in 18 %, below 70 degrees in 99 %).
     refute_min_fails, refute_fail_ratio : int, float
         A tracked point is *refuted* (:func:`refuted`) when the cameras where it is in the
         image and not occluded, but where it is still unobserved after a search, number at
@@ -150,6 +157,7 @@ class ViewsConfig:
     max_retry_every: int = 0
     search_sigmas: float = 0.0
     confirm_new: bool = True
+    drop_grazing: bool = True
     refute_min_fails: int = 8
     refute_fail_ratio: float = 4.0
     normal: str = "neighbors"
@@ -260,6 +268,38 @@ def retry_due(
     period = np.minimum(every * (1 << np.clip(m - 1, 0, MAX_MISSES)), max_every)
     phase = np.asarray(ids, np.int64)[None, :] + np.arange(C)[:, None] + t
     return (m == 0) | (phase % np.maximum(period, 1) == 0)
+
+
+def grazing_views(
+    rig: CameraRig, xyz: np.ndarray, observed: np.ndarray, config: ViewsConfig
+) -> np.ndarray:
+    """The observed views to drop: beyond ``max_incidence_deg`` to the point's fitted normal,
+    on points that keep at least 3 views without them.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        C cameras.
+    xyz : (N, 3) float ndarray
+    observed : (C, N) bool ndarray
+    config : ViewsConfig
+        ``max_incidence_deg`` and ``normal_neighbors``.
+
+    Returns
+    -------
+    (C, N) bool ndarray
+        True for the views to drop (a subset of ``observed``).
+    """
+    X = check_array("xyz", xyz, (None, 3))
+    obs = check_array("observed", observed, (len(rig), len(X)), dtype=bool)
+    normals = point_normals(rig, X, obs, config.normal_neighbors)
+    cams, pts = np.nonzero(obs)  # only the observed views: (C, N, 3) directions are large
+    d = rig.C[cams] - X[pts]
+    cos = np.einsum("kj,kj->k", d, normals[pts]) / np.linalg.norm(d, axis=1)
+    grazing = np.zeros_like(obs)
+    grazing[cams, pts] = cos < np.cos(np.radians(config.max_incidence_deg))
+    keeps = (obs & ~grazing).sum(axis=0) >= 3
+    return grazing & keeps[None, :]
 
 
 def refuted(misses: np.ndarray, observed: np.ndarray, config: ViewsConfig) -> np.ndarray:

@@ -67,7 +67,9 @@ def test_floating_points_that_discovery_refutes_hide_nothing(ten_cameras):
     fpix = rig.project(floaters).pixels  # (C, F, 2)
     kept = {}
     for ratio in (4.0, 0.0):
-        cfg = dataclasses.replace(base, views=ViewsConfig(refute_fail_ratio=ratio))
+        # (grazing views kept: the floaters tilt the normals fitted to the plane under them)
+        views = ViewsConfig(refute_fail_ratio=ratio, drop_grazing=False)
+        cfg = dataclasses.replace(base, views=views)
         tracker = Tracker(rig, cfg, edges=edges)
         tracker.step(0, frames[0])
         st = tracker.state
@@ -101,3 +103,20 @@ def test_floating_points_that_discovery_refutes_hide_nothing(ten_cameras):
         assert np.isin(st.next_id + np.arange(F), rec.ids).mean() > 0.9  # the floaters stay
     assert kept[0.0] < 0.5  # hidden by the floaters
     assert kept[4.0] > 0.9
+
+
+def test_views_beyond_the_incidence_limit_are_dropped_where_three_remain():
+    """A plane seen from three cameras near its normal and one at 85 degrees: the grazing
+    view goes where three others remain, and stays on a point that would keep two."""
+    from pointtraj.reconstruct.views import grazing_views
+
+    rig = plane_rig(angles=(-20.0, 0.0, 20.0, 85.0))
+    g = np.linspace(-0.2, 0.2, 10)
+    xyz = np.column_stack([np.repeat(g, 10), np.tile(g, 10), np.zeros(100)])  # z = 0
+    observed = np.ones((4, 100), bool)
+    observed[0, 50:] = False  # the second half: two views besides the grazing one
+    drop = grazing_views(rig, xyz, observed, ViewsConfig())
+    assert drop[3, :50].all() and not drop[:3].any()
+    assert not drop[3, 50:].any()
+    assert not grazing_views(rig, xyz, observed, ViewsConfig(max_incidence_deg=89.0)).any()
+    assert not (drop & ~observed).any()
