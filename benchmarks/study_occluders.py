@@ -6,9 +6,10 @@ Usage (from the repository root)::
     .venv/bin/python benchmarks/study_occluders.py CAPTURE WORK [--frames 0,10,20,29]
         [--radius 0.03] [--depth-tol 0.01]
 
-For each frame, of the truly visible views of actor points (the audit of
-:mod:`pointtraj.evaluate.views`: the camera's depth map sees the point's nearest ground-truth
-sample within ``--depth-tol``): the share observed (recall), and the shares of the rest that
+For each frame, the precision of the observed views of actor points, and of their truly visible
+views (the audit of :mod:`pointtraj.evaluate.views`: the camera's depth map sees the point's
+nearest ground-truth sample within ``--depth-tol``): the share observed (recall), and the
+shares of the rest that
 the tracker's occlusion test marks occluded (``ReconstructConfig()`` defaults: 5 cm, 8 px
 cells, every point hiding), that face the camera at more than ``max_incidence_deg`` by the
 fitted normal, and that were searchable. Then the test's false occlusions by the point in front
@@ -91,6 +92,8 @@ def frame_losses(capture: Path, rig, traj, t: int, radius: float, depth_tol: flo
         "actor_points": int(actor.sum()),
         "true_views": true,
         "recall": float((vis & obs).sum() / true),
+        "precision": float((vis & obs).sum() / max(int(obs.sum()), 1)),
+        "observed_views": int(obs.sum()),
         "lost_occluded": float((vis & ~obs & occ).sum() / true),
         "lost_grazing": float((vis & ~obs & ~occ & grazing).sum() / true),
         "lost_searchable": float((vis & ~obs & ~occ & ~grazing).sum() / true),

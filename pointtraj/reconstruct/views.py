@@ -279,9 +279,11 @@ def grazing_views(
     Parameters
     ----------
     rig : CameraRig
-        C cameras.
+        The C cameras.
     xyz : (N, 3) float ndarray
+        The frame's points.
     observed : (C, N) bool ndarray
+        Their views (after the search).
     config : ViewsConfig
         ``max_incidence_deg`` and ``normal_neighbors``.
 
