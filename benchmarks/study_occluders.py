@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 
 
-def cell_front(rig, proj, hide: np.ndarray, cell_px: float, tol: float) -> np.ndarray:
-    """(C, N) index of the point in front in each point's z-buffer cell (-1 where none),
-    among the points ``hide`` (N,) bool, as :func:`~pointtraj.reconstruct.occlusion.occlusion_test`
-    builds its cells."""
+def cell_front(rig, proj, cell_px: float) -> np.ndarray:
+    """(C, N) index of the nearest point in each point's z-buffer cell (-1 outside the image),
+    the cells of :func:`~pointtraj.reconstruct.occlusion.occlusion_test`: which point a view
+    that the test marks is hidden behind."""
     ok = proj.in_image
     C, N = ok.shape
     front = np.full((C, N), -1)
@@ -44,7 +44,7 @@ def cell_front(rig, proj, hide: np.ndarray, cell_px: float, tol: float) -> np.nd
         cell = np.clip((pix[:, 1] + 0.5) // cell_px, 0, gh - 1).astype(np.int64) * gw + np.clip(
             (pix[:, 0] + 0.5) // cell_px, 0, gw - 1
         ).astype(np.int64)
-        idx = np.flatnonzero(ok[c] & hide)
+        idx = np.flatnonzero(ok[c])
         order = idx[np.lexsort((proj.depth[c, idx], cell[idx]))]
         first = np.ones(len(order), bool)
         first[1:] = cell[order][1:] != cell[order][:-1]
@@ -60,6 +60,7 @@ def frame_losses(capture: Path, rig, traj, t: int, radius: float, depth_tol: flo
 
     from pointtraj.evaluate.views import frame_truth, nearest_sample
     from pointtraj.reconstruct.config import ReconstructConfig
+    from pointtraj.reconstruct.occlusion import occlusion_test
     from pointtraj.reconstruct.views import _directions, point_normals
     from pointtraj.trajectories import dequantize_visibility
 
@@ -71,12 +72,10 @@ def frame_losses(capture: Path, rig, traj, t: int, radius: float, depth_tol: flo
     nearest, actor = nearest_sample(truth, xyz, radius)
     off, _ = cKDTree(truth.xyz).query(xyz)  # metres from the surface, every point
     proj = rig.project(xyz)
-    tol = cfg.occlusion_depth_m
-    front = cell_front(rig, proj, np.ones(len(xyz), bool), cfg.occlusion_cell_px, tol)
-    safe = np.maximum(front, 0)
-    occluded = (front >= 0) & (
-        proj.depth - tol / 2 > np.take_along_axis(proj.depth, safe, 1) + tol / 2
-    )
+    occluded = occlusion_test(
+        rig, xyz, cfg.occlusion_depth_m, cell_px=cfg.occlusion_cell_px, projection=proj
+    ).T  # (C, N), the tracker's test with every point hiding
+    safe = np.maximum(cell_front(rig, proj, cfg.occlusion_cell_px), 0)
     vis = truth.visible[nearest[actor]].T  # (C, A)
     obs, occ = observed[:, actor], occluded[:, actor]
     normals = point_normals(rig, xyz, observed, cfg.views.normal_neighbors)
