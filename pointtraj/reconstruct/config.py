@@ -60,6 +60,11 @@ class ReconstructConfig:
     fb_max_px : float
         Forward-backward flow check: a view is dropped when tracking forward then backward ends
         farther than this from the start.
+    fb_skip_views : int
+        Points tracked in at least this many cameras skip the backward flow and its check
+        (half the flow's cost): their re-triangulation's RANSAC rejects a view that the flow
+        lost, by its disagreement with the others. Points in fewer cameras, where a lost
+        view can agree with the rest, keep the check. 0: every point is checked.
     cover_px : float
         A new point is already covered when, in at least ``cover_views`` of its cameras, a live
         trajectory's observation lies within this many pixels of its own.
@@ -200,6 +205,7 @@ class ReconstructConfig:
     lk_levels: int = 3
     lk_start: Literal["projection", "observation"] = "projection"
     fb_max_px: float = 1.0
+    fb_skip_views: int = 4
     cover_px: float = 3.0
     cover_views: int = 2
     cover_visible: str = "auto"
@@ -238,6 +244,7 @@ class ReconstructConfig:
             "lk_window": self.lk_window >= 5,
             "lk_levels": self.lk_levels >= 0,
             "fb_max_px": self.fb_max_px > 0,
+            "fb_skip_views": self.fb_skip_views == 0 or self.fb_skip_views >= 3,
             "cover_px": self.cover_px >= 0,
             "cover_views": self.cover_views >= 1,
             "cover_visible": self.cover_visible in ("auto", "on", "off"),

@@ -28,6 +28,7 @@ def _flow_fb(
     lk: dict,
     fb_max_px: float,
     guess: np.ndarray | None = None,
+    check: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lucas-Kanade flow ``img0`` -> ``img1`` and back, with the forward-backward check.
 
@@ -43,13 +44,17 @@ def _flow_fb(
     guess : (K, 2) float ndarray, optional
         Start of the forward flow in ``img1`` (the backward flow then starts at ``p0``);
         default: both start where they come from.
+    check : (K,) bool ndarray, optional
+        Which points get the backward flow and its check (default: all); the others need only
+        converge forward inside ``img1``.
 
     Returns
     -------
     p1 : (K, 2) float32 ndarray
         Positions in ``img1``.
     good : (K,) bool ndarray
-        Converged both ways, back within ``fb_max_px`` and inside ``img1``.
+        Converged both ways, back within ``fb_max_px`` and inside ``img1`` (forward only where
+        ``check`` is False).
     """
     import cv2
 
@@ -71,7 +76,7 @@ def _flow_fb(
     )
     # back only from where the forward flow converged inside img1 (the rest fails anyway;
     # Lucas-Kanade tracks each point on its own, so the others' results are the same)
-    idx = np.flatnonzero(good)
+    idx = np.flatnonzero(good if check is None else good & check)
     if idx.size:
         fwd_ok = np.ascontiguousarray(p1[idx]).reshape(-1, 1, 2)
         back_ok = None if back is None else np.ascontiguousarray(back[idx])
@@ -89,6 +94,7 @@ def track_flow(
     window: int = 21,
     levels: int = 3,
     fb_max_px: float = 1.0,
+    check: np.ndarray | None = None,
 ) -> np.ndarray:
     """Pyramidal Lucas-Kanade flow of many points at once, with a forward-backward check.
 
@@ -102,6 +108,9 @@ def track_flow(
         Lucas-Kanade window size and pyramid levels.
     fb_max_px : float
         Maximum forward-backward error.
+    check : (K,) bool ndarray, optional
+        Which points get the forward-backward check (default: all); the others are kept where
+        the forward flow converges inside the image.
 
     Returns
     -------
@@ -118,7 +127,8 @@ def track_flow(
         return out
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
     lk = {"winSize": (window, window), "maxLevel": levels, "criteria": crit}
-    p1, good = _flow_fb(prev_grey, grey, p[idx], lk, fb_max_px)
+    chk = None if check is None else check_array("check", check, (len(p),), dtype=bool)[idx]
+    p1, good = _flow_fb(prev_grey, grey, p[idx], lk, fb_max_px, check=chk)
     out[idx[good]] = p1[good]
     return out
 

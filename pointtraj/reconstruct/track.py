@@ -444,8 +444,12 @@ class Tracker:
                 start = rig.project(st.xyz).pixels  # (C, N, 2)
             else:
                 start = st.pixels.astype(np.float64)
+            seen_in = st.visibility > cfg.visibility_threshold  # (N, C)
+            check = None  # points in fb_skip_views cameras or more: RANSAC checks their flow
+            if cfg.fb_skip_views:
+                check = np.count_nonzero(seen_in, axis=1) < cfg.fb_skip_views
             for c in range(C):
-                sel = np.flatnonzero(st.visibility[:, c] > cfg.visibility_threshold)
+                sel = np.flatnonzero(seen_in[:, c])
                 if sel.size:
                     obs[c, sel] = track_flow(
                         self._prev_grey[c],
@@ -454,6 +458,7 @@ class Tracker:
                         window=cfg.lk_window,
                         levels=cfg.lk_levels,
                         fb_max_px=cfg.fb_max_px,
+                        check=None if check is None else check[sel],
                     )
         tri_old = triangulate_ransac(rig, obs, self.tri_config)
         triangulated = self._alive(tri_old)
