@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -16,6 +17,7 @@ from pointtraj.labeling import (
     expand_alpha,
     label_trajectories,
     labeling_energy,
+    weigh_by_support,
 )
 
 
@@ -299,3 +301,41 @@ def test_support_frames_weighs_data_cost_by_pooled_frames():
         label_trajectories(l3d, row, col, weight, cfg, support=np.ones(3))
     with pytest.raises(ValidationError, match="support_frames"):
         LabelingConfig(support_frames=-1.0)
+
+
+def test_support_frames_leaves_the_background_margin_unweighed():
+    """The evidence weight holds a class against other classes, not against the background.
+
+    Trajectory 0 pooled 60 frames with class 0 just above the background level (a recogniser's
+    mask that spills past a person, the same in every frame); its three neighbours have no
+    class above it. As with the paper's cost they pull it to the background. Between two
+    classes (above the background) the weight still holds it.
+    """
+    row, col, weight = np.array([0, 0, 0]), np.array([1, 2, 3]), np.full(3, 1.0)
+    count = np.array([60, 2, 2, 2])
+    cfg = LabelingConfig(background=0.1, support_frames=10.0)
+    spill = np.array([[0.15, 0.05]] + [[0.02, 0.02]] * 3)
+    paper = label_trajectories(spill, row, col, weight, dataclasses.replace(cfg, support_frames=0))
+    np.testing.assert_array_equal(paper.labels, [-1, -1, -1, -1])
+    res = label_trajectories(spill, row, col, weight, cfg, support=count)
+    np.testing.assert_array_equal(res.labels, paper.labels)
+    # the costs: the classes' weighed by max(1, n / 10), the background's margin to the best
+    # class as it was
+    D = data_costs(np.column_stack([spill, np.full(4, 0.1)]))
+    W = weigh_by_support(D, np.maximum(1.0, count / 10.0), 2)
+    np.testing.assert_allclose(W[:, :2], D[:, :2] * np.array([6.0, 1, 1, 1])[:, None])
+    np.testing.assert_allclose(W[:, 2] - W[:, :2].min(axis=1), D[:, 2] - D[:, :2].min(axis=1))
+    assert np.all(W.min(axis=1) == 0)
+    assert res.energy[-1] == pytest.approx(
+        labeling_energy(res.labels + 3 * (res.labels < 0), W, row, col, weight, 0.5)
+    )
+    # two classes, both above the background: 60 frames of evidence hold class 0
+    classes = np.array([[0.4, 0.3]] + [[0.3, 0.4]] * 3)
+    held = label_trajectories(classes, row, col, weight, cfg, support=count)
+    np.testing.assert_array_equal(held.labels, [0, 0, 0, 0])
+    np.testing.assert_array_equal(
+        label_trajectories(
+            classes, row, col, weight, dataclasses.replace(cfg, support_frames=0)
+        ).labels,
+        [1, 1, 1, 1],
+    )
