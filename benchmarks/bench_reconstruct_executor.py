@@ -80,6 +80,7 @@ def main() -> int:
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("distributed").setLevel(logging.ERROR)
+    logging.getLogger("pointtraj.reconstruct.stage").setLevel(logging.INFO)  # each chunk's times
 
     from pointtraj.executor import ExecutorConfig, SerialExecutor, open_executor
     from pointtraj.reconstruct.chunks import plan_chunks

@@ -151,6 +151,8 @@ class ChunkResult:
         Trajectories ended, by reason, in the frames tracked by this call.
     cpu_s : float
         CPU seconds of this call in its process.
+    wall_s : float
+        Wall seconds of this call.
     """
 
     store: str
@@ -158,6 +160,7 @@ class ChunkResult:
     tracked: int
     stops: dict[str, int]
     cpu_s: float
+    wall_s: float = 0.0
 
 
 def reconstruct_chunk(task: ChunkTask) -> ChunkResult:
@@ -178,7 +181,7 @@ def reconstruct_chunk(task: ChunkTask) -> ChunkResult:
     -------
     ChunkResult
     """
-    cpu0 = time.process_time()
+    cpu0, wall0 = time.process_time(), time.perf_counter()
     folder = Path(task.folder)
     out = folder / "trajectories.npz"
     tail = folder / "tail.npz" if task.tail_stop > task.stop else None
@@ -200,7 +203,14 @@ def reconstruct_chunk(task: ChunkTask) -> ChunkResult:
     if tail is not None:
         state = FrameStore(folder, len(capture.rig)).read_state_at(task.stop - 1)
         _carry_on(capture, state, task.tail_stop, task.config, task.edges).save(tail)
-    return ChunkResult(str(out), tail and str(tail), tracked, stops, time.process_time() - cpu0)
+    return ChunkResult(
+        str(out),
+        tail and str(tail),
+        tracked,
+        stops,
+        time.process_time() - cpu0,
+        time.perf_counter() - wall0,
+    )
 
 
 def _carry_on(
@@ -453,6 +463,15 @@ def _reconstruct_chunks(
                 record_installed(f)  # a worker wrote them: the work folder's manifest lists them
         for k, v in result.stops.items():
             stops[k] = stops.get(k, 0) + v
+        if result.tracked:
+            logger.info(
+                "chunk %s: %d frames tracked%s in %.1f s (%.1f CPU-s in its process)",
+                chunk.name,
+                result.tracked,
+                " and its tail carried on" if result.tail else "",
+                result.wall_s,
+                result.cpu_s,
+            )
         stores.append(Trajectories.load(result.store))
         tails.append(Bridge.load(result.tail) if result.tail else None)
         if on_frame is not None:
