@@ -64,7 +64,9 @@ class ReconstructConfig:
         Points tracked in at least this many cameras skip the backward flow and its check
         (half the flow's cost): their re-triangulation's RANSAC rejects a view that the flow
         lost, by its disagreement with the others. Points in fewer cameras, where a lost
-        view can agree with the rest, keep the check. 0: every point is checked.
+        view can agree with the rest, keep the check. 0: every point is checked. Applied only
+        where ``ransac_threshold_px`` is at most twice ``fb_max_px`` (a looser RANSAC keeps a
+        drifted view; :func:`~pointtraj.reconstruct.track.effective_fb_skip`, logged).
     cover_px : float
         A new point is already covered when, in at least ``cover_views`` of its cameras, a live
         trajectory's observation lies within this many pixels of its own.

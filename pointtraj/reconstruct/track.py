@@ -50,6 +50,7 @@ __all__ = [
     "config_edges",
     "select_edges",
     "covered_by",
+    "effective_fb_skip",
     "sample_colors",
 ]
 
@@ -326,6 +327,40 @@ def occlusion_tolerance(
 # -- the tracker ------------------------------------------------------------------------------
 
 
+def effective_fb_skip(cfg: ReconstructConfig, *, log: bool = False) -> int:
+    """The camera count from which tracked points skip the backward flow check (0: none skip).
+
+    ``cfg.fb_skip_views`` where the re-triangulation can stand in for the check: its RANSAC
+    drops a view that the flow lost only when the view lands farther than
+    ``ransac_threshold_px`` from where the other views put the point, so the skip applies
+    where that tolerance is at most twice ``fb_max_px``. On a rig calibrated to several
+    pixels (Pose2Sim's pipeline: 12 px) RANSAC would keep a view that drifted by up to 12 px,
+    which the backward check drops at 1 px: there every point keeps the check.
+
+    Parameters
+    ----------
+    cfg : ReconstructConfig
+    log : bool
+        Log, at INFO, when the configured skip is turned off.
+
+    Returns
+    -------
+    int
+    """
+    if not cfg.fb_skip_views or cfg.ransac_threshold_px <= 2 * cfg.fb_max_px:
+        return cfg.fb_skip_views
+    if log:
+        logger.info(
+            "every tracked point keeps the forward-backward flow check (fb_skip_views = %d "
+            "not applied): ransac_threshold_px = %g is above twice fb_max_px = %g, so the "
+            "re-triangulation would keep a view that the flow lost",
+            cfg.fb_skip_views,
+            cfg.ransac_threshold_px,
+            cfg.fb_max_px,
+        )
+    return 0
+
+
 class Tracker:
     """Frame-by-frame trajectory reconstruction (tracking -> triangulation -> visibility).
 
@@ -385,6 +420,7 @@ class Tracker:
                 ", ".join(rig.names[c] for c in np.flatnonzero(alone)),
                 self.config.densify.max_angle_deg,
             )
+        self._fb_skip = effective_fb_skip(self.config, log=True)
         lonely = [rig.names[c] for c in range(len(rig)) if not np.isin(c, self.edges).any()]
         if lonely and len(rig) > 1:
             logger.warning(
@@ -446,8 +482,8 @@ class Tracker:
                 start = st.pixels.astype(np.float64)
             seen_in = st.visibility > cfg.visibility_threshold  # (N, C)
             check = None  # points in fb_skip_views cameras or more: RANSAC checks their flow
-            if cfg.fb_skip_views:
-                check = np.count_nonzero(seen_in, axis=1) < cfg.fb_skip_views
+            if self._fb_skip:
+                check = np.count_nonzero(seen_in, axis=1) < self._fb_skip
             for c in range(C):
                 sel = np.flatnonzero(seen_in[:, c])
                 if sel.size:

@@ -12,7 +12,7 @@ from pointtraj.errors import ValidationError
 from pointtraj.reconstruct.config import ReconstructConfig
 from pointtraj.reconstruct.flow import track_flow
 from pointtraj.reconstruct.matching import MatchingConfig
-from pointtraj.reconstruct.track import Tracker
+from pointtraj.reconstruct.track import Tracker, effective_fb_skip
 
 
 def _grey(seed: int):
@@ -80,3 +80,40 @@ def test_ransac_drops_the_lost_view_of_a_point_in_many_cameras():
     # on the plane z = 0 as with the check (the plane's own error: about 5 mm a pixel here)
     z0, z4 = (np.percentile(np.abs(out[k][2][:, 2]), [50, 99]) for k in (0, 4))
     np.testing.assert_allclose(z4, z0, atol=0.001)
+
+
+def test_a_loose_ransac_keeps_the_check_for_every_point(caplog):
+    """Where RANSAC tolerates more than twice the backward check's error, it cannot stand in
+    for the check: every point keeps it, as with fb_skip_views = 0, and the tracker says so."""
+    assert effective_fb_skip(ReconstructConfig()) == 4  # 2 px against 2 x 1 px
+    loose = ReconstructConfig(ransac_threshold_px=12.0, max_mean_error_px=12.0)
+    assert effective_fb_skip(loose) == 0
+    assert effective_fb_skip(ReconstructConfig(ransac_threshold_px=12.0, fb_max_px=6.0)) == 4
+    assert effective_fb_skip(ReconstructConfig(ransac_threshold_px=12.0, fb_skip_views=0)) == 0
+    rig = plane_rig(angles=np.linspace(-25.0, 25.0, 6))
+    frames = plane_frames(rig, 2, seed=3, velocity=(0.01, 0.005, 0.0))
+    lost = [im.copy() for im in frames[1]]
+    lost[2] = make_texture(np.random.default_rng(9), max(lost[2].shape))[
+        : lost[2].shape[0], : lost[2].shape[1]
+    ]
+    edges = np.array([[c, c + 1] for c in range(len(rig) - 1)])
+    states = []
+    for skip in (0, 4):
+        cfg = ReconstructConfig(
+            matching=MatchingConfig(num_features=800),
+            ransac_threshold_px=12.0,
+            max_mean_error_px=12.0,
+            fb_skip_views=skip,
+        )
+        with caplog.at_level("INFO", logger="pointtraj.reconstruct.track"):
+            caplog.clear()
+            tracker = Tracker(rig, cfg, edges=edges)
+        logged = "keeps the forward-backward flow check" in caplog.text
+        assert logged == bool(skip)
+        tracker.step(0, frames[0])
+        tracker.step(1, lost)
+        states.append(tracker.state)
+    assert len(states[1]) > 100
+    np.testing.assert_array_equal(states[1].ids, states[0].ids)
+    np.testing.assert_array_equal(states[1].xyz, states[0].xyz)
+    np.testing.assert_array_equal(states[1].visibility, states[0].visibility)
