@@ -21,6 +21,20 @@ def _grey(seed: int):
     return cv2.cvtColor(make_texture(np.random.default_rng(seed), 256), cv2.COLOR_RGB2GRAY)
 
 
+def _lost_camera_scene():
+    """Six cameras over a textured plane, two frames; camera 2's second image replaced by an
+    unrelated texture (its flow is lost). Returns the rig, the frames, the second frame with
+    the lost image, and the camera pairs to match."""
+    rig = plane_rig(angles=np.linspace(-25.0, 25.0, 6))
+    frames = plane_frames(rig, 2, seed=3, velocity=(0.01, 0.005, 0.0))
+    lost = [im.copy() for im in frames[1]]
+    lost[2] = make_texture(np.random.default_rng(9), max(lost[2].shape))[
+        : lost[2].shape[0], : lost[2].shape[1]
+    ]
+    edges = np.array([[c, c + 1] for c in range(len(rig) - 1)])
+    return rig, frames, lost, edges
+
+
 def test_unchecked_points_keep_the_forward_flow():
     import cv2
 
@@ -54,13 +68,7 @@ def test_ransac_drops_the_lost_view_of_a_point_in_many_cameras():
     """Camera 2's second image is unrelated to its first: its flow is lost. Points in six
     cameras skip the backward check there, and the re-triangulation drops the view; the
     points stay on the plane z = 0 and are tracked as with the check."""
-    rig = plane_rig(angles=np.linspace(-25.0, 25.0, 6))
-    frames = plane_frames(rig, 2, seed=3, velocity=(0.01, 0.005, 0.0))
-    lost = [im.copy() for im in frames[1]]
-    lost[2] = make_texture(np.random.default_rng(9), max(lost[2].shape))[
-        : lost[2].shape[0], : lost[2].shape[1]
-    ]
-    edges = np.array([[c, c + 1] for c in range(len(rig) - 1)])
+    rig, frames, lost, edges = _lost_camera_scene()
     out = {}
     for skip in (0, 4):
         cfg = ReconstructConfig(matching=MatchingConfig(num_features=800), fb_skip_views=skip)
@@ -90,13 +98,7 @@ def test_a_loose_ransac_keeps_the_check_for_every_point(caplog):
     assert effective_fb_skip(loose) == 0
     assert effective_fb_skip(ReconstructConfig(ransac_threshold_px=12.0, fb_max_px=6.0)) == 4
     assert effective_fb_skip(ReconstructConfig(ransac_threshold_px=12.0, fb_skip_views=0)) == 0
-    rig = plane_rig(angles=np.linspace(-25.0, 25.0, 6))
-    frames = plane_frames(rig, 2, seed=3, velocity=(0.01, 0.005, 0.0))
-    lost = [im.copy() for im in frames[1]]
-    lost[2] = make_texture(np.random.default_rng(9), max(lost[2].shape))[
-        : lost[2].shape[0], : lost[2].shape[1]
-    ]
-    edges = np.array([[c, c + 1] for c in range(len(rig) - 1)])
+    rig, frames, lost, edges = _lost_camera_scene()
     states = []
     for skip in (0, 4):
         cfg = ReconstructConfig(
