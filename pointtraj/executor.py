@@ -256,17 +256,29 @@ class DaskExecutor(Executor):
     def map(
         self, fn, items, *, label="", progress=None, total=None, max_pending=None, context=None
     ):
+        from concurrent.futures import CancelledError
+
         from distributed import KilledWorker
 
         items, total = _count(items, total)
         limit = max_pending or 2 * self.workers
         shared = None
-        if context is not None:
+
+        def send_context() -> Any:
             # once to every worker (a worker that joins later fetches it from a peer)
             # (in a list: a tuple or dict context is one object, not one per element)
-            [shared] = self.client.scatter([context], broadcast=True, hash=False)
-        pending: deque[Any] = deque()
-        done = 0
+            [future] = self.client.scatter([context], broadcast=True, hash=False)
+            return future
+
+        def submit(item: Any) -> Any:
+            # pure=False: every call is a new task, even with equal arguments
+            args = (item,) if shared is None else (shared, item)
+            return self.client.submit(fn, *args, pure=False, key=_key(fn, label))
+
+        if context is not None:
+            shared = send_context()
+        pending: deque[tuple[Any, Any]] = deque()  # (item, future), in input order
+        done = resent = 0
         it = iter(items)
         exhausted = False
         try:
@@ -277,12 +289,10 @@ class DaskExecutor(Executor):
                     except StopIteration:
                         exhausted = True
                         break
-                    # pure=False: every call is a new task, even with equal arguments
-                    args = (item,) if shared is None else (shared, item)
-                    pending.append(self.client.submit(fn, *args, pure=False, key=_key(fn, label)))
+                    pending.append((item, submit(item)))
                 if not pending:
                     return
-                future = pending.popleft()
+                item, future = pending.popleft()
                 try:
                     result = future.result()
                 except KilledWorker as exc:
@@ -291,6 +301,34 @@ class DaskExecutor(Executor):
                         f"({exc}); out of memory? Give the workers more (--memory-limit of "
                         "`dask worker`, [executor] memory_limit) or run fewer per machine"
                     ) from None
+                except CancelledError as exc:
+                    # Scattered data is not recomputed: the scheduler cancels the tasks that
+                    # need the context when the workers holding it die (its extra copies may
+                    # have been dropped by Dask's memory manager). Tasks are idempotent: send
+                    # the context again and resubmit this task and the pending ones.
+                    if resent >= _MAX_RESENDS:
+                        raise PointtrajError(
+                            f"{label or 'a task'}: the scheduler cancelled its tasks "
+                            f"{resent + 1} times ({exc}); were workers lost, or the run "
+                            "cancelled from another client?"
+                        ) from None
+                    resent += 1
+                    logger.warning(
+                        "%s: the scheduler cancelled a task (%s), most likely because the "
+                        "workers holding its inputs were lost; resubmitting it and the %d "
+                        "pending ones",
+                        label or "a task",
+                        exc,
+                        len(pending),
+                    )
+                    again = [item, *(i for i, _ in pending)]
+                    for _, f in pending:
+                        f.cancel()
+                    if shared is not None:
+                        shared.release()
+                        shared = send_context()
+                    pending = deque((i, submit(i)) for i in again)
+                    continue
                 finally:
                     future.release()
                 done += 1
@@ -298,7 +336,7 @@ class DaskExecutor(Executor):
                     progress(label, done, total or done)
                 yield result
         finally:
-            for f in pending:  # an error, or the caller stopped early
+            for _, f in pending:  # an error, or the caller stopped early
                 f.cancel()
             if shared is not None:
                 shared.release()
@@ -363,6 +401,10 @@ class LazyExecutor(Executor):
 
     def __repr__(self) -> str:
         return f"LazyExecutor({self._executor or self.config!r})"
+
+
+#: Times a map sends its tasks again after the scheduler cancelled them (lost inputs).
+_MAX_RESENDS = 3
 
 
 def _key(fn: Callable[..., Any], label: str) -> str:

@@ -146,6 +146,40 @@ def test_stages_on_a_local_cluster_match_serial(tmp_path, tiny_reference, local_
     _assert_same_files(tiny_reference / "work", work, "renders/**/*.mp4")
 
 
+def test_tasks_whose_scattered_context_is_lost_are_sent_again(local_cluster, caplog):
+    """Scattered data is not recomputed: when the workers holding a map's context die, the
+    scheduler cancels the tasks that need it. The map sends the context again and resubmits
+    them. The loss is made here by cancelling the scattered key on the scheduler after the
+    first result, as its last holder's death does."""
+    import operator
+
+    from distributed import Future
+
+    client = local_cluster.client
+    lost = []
+
+    def lose_the_context(label: str, done: int, total: int) -> None:
+        if done == 1 and not lost:
+            keys = [k for k in client.who_has() if str(k).startswith("int-")]
+            assert len(keys) == 1  # the context, scattered once
+            client.cancel([Future(keys[0], client)], force=True)
+            lost.extend(keys)
+
+    with caplog.at_level("WARNING", logger="pointtraj.executor"):
+        out = list(
+            local_cluster.map(
+                operator.add, range(6), label="add", context=100, progress=lose_the_context,
+                max_pending=1,
+            )
+        )  # fmt: skip
+    assert lost and out == [100, 101, 102, 103, 104, 105]
+    assert "resubmitting it" in caplog.text
+    deadline = time.monotonic() + 30  # the context sent again is released at the end
+    while [k for k in client.who_has() if str(k).startswith("int-")]:
+        assert time.monotonic() < deadline, "the context sent again was not released"
+        time.sleep(0.1)
+
+
 def test_a_task_error_comes_back_as_itself(tmp_path, tiny_reference, local_cluster):
     """A bad input found inside a task raises the same error, message and all, as serial."""
     shutil.copytree(tiny_reference / "cap", tmp_path / "cap")
