@@ -27,7 +27,7 @@ from ..errors import ValidationError, check_array
 from ..geometry import axis_angles
 from ..trajectories import quantize_visibility
 from .config import ReconstructConfig
-from .flow import expand_views, to_grey, track_flow
+from .flow import expand_views, still_flow, to_grey, track_flow
 from .matching import MultiViewTracks, match_frame, resolve_ambiguous
 from .survive import carry_one_view, predict_rigid
 from .views import (
@@ -434,6 +434,9 @@ class Tracker:
         self._first_frame = first_frame
         #: Why trajectories ended, counted over the frames stepped (:data:`STOP_REASONS`).
         self.stops: dict[str, int] = dict.fromkeys(STOP_REASONS, 0)
+        #: Tracked views over the frames stepped: ``"still"`` took their flow from one
+        #: Lucas-Kanade step (``still_px``), ``"pyramidal"`` from the pyramidal flow.
+        self.flows: dict[str, int] = {"still": 0, "pyramidal": 0}
 
     def set_previous_images(self, images: Sequence[np.ndarray]) -> None:
         """Give the images of ``state.frame`` (needed to resume tracking)."""
@@ -475,6 +478,7 @@ class Tracker:
 
         # 1. tracking: LK flow of the live points in their visible cameras
         obs = np.full((C, len(st), 2), np.nan)
+        still = flowed = 0  # views tracked by one step, and by the pyramidal flow
         if len(st):
             if cfg.lk_start == "projection":
                 start = rig.project(st.xyz).pixels  # (C, N, 2)
@@ -486,7 +490,19 @@ class Tracker:
                 check = np.count_nonzero(seen_in, axis=1) < self._fb_skip
             for c in range(C):
                 sel = np.flatnonzero(seen_in[:, c])
+                if sel.size and cfg.still_px > 0:  # windows that barely move: one LK step
+                    obs[c, sel] = still_flow(
+                        self._prev_grey[c],
+                        grey[c],
+                        start[c, sel],
+                        window=cfg.lk_window,
+                        max_px=cfg.still_px,
+                        noise_ratio=cfg.still_noise,
+                    )
+                    sel = sel[np.isnan(obs[c, sel, 0])]
+                    still += int(np.count_nonzero(seen_in[:, c])) - sel.size
                 if sel.size:
+                    flowed += sel.size
                     obs[c, sel] = track_flow(
                         self._prev_grey[c],
                         grey[c],
@@ -496,6 +512,8 @@ class Tracker:
                         fb_max_px=cfg.fb_max_px,
                         check=None if check is None else check[sel],
                     )
+        self.flows["still"] += still
+        self.flows["pyramidal"] += flowed
         tri_old = triangulate_ransac(rig, obs, self.tri_config)
         triangulated = self._alive(tri_old)
         keep_old = triangulated
@@ -585,10 +603,11 @@ class Tracker:
         )
         self._prev_grey = grey
         logger.info(
-            "frame %d: %d tracked of %d, %d new, %d live",
+            "frame %d: %d tracked of %d (%.0f %% of their views still), %d new, %d live",
             t,
             int(seen[:n_old].sum()),
             len(st),
+            100.0 * still / max(still + flowed, 1),
             n_new,
             len(ids),
         )
