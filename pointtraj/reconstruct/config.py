@@ -74,8 +74,10 @@ class ReconstructConfig:
         check; the rest, and any whose residual after the step is above ``still_noise`` times
         the image's noise, get the pyramidal flow. On a capture with a static background most
         views are such (83 % on paper69, which saves about 10 % of a tracked frame's CPU at
-        the same accuracy); ``docs/reconstruction.md``, "Still views". 0: every view gets the
-        pyramidal flow.
+        the same accuracy). Only cameras that track at least one view per 256 pixels take the
+        step, where its whole-image sums cost less than the flow they save
+        (:data:`~pointtraj.reconstruct.flow.STILL_VIEWS_PER_PIXEL`); ``docs/reconstruction.md``,
+        "Still views". 0: every view gets the pyramidal flow.
     still_noise : float
         See ``still_px``: the largest residual per pixel, in units of the image's noise (the
         mean squared frame difference of its quietest quarter of windows).

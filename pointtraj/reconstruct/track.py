@@ -27,7 +27,7 @@ from ..errors import ValidationError, check_array
 from ..geometry import axis_angles
 from ..trajectories import quantize_visibility
 from .config import ReconstructConfig
-from .flow import expand_views, still_flow, to_grey, track_flow
+from .flow import STILL_VIEWS_PER_PIXEL, expand_views, still_flow, to_grey, track_flow
 from .matching import MultiViewTracks, match_frame, resolve_ambiguous
 from .survive import carry_one_view, predict_rigid
 from .views import (
@@ -492,7 +492,8 @@ class Tracker:
             for c in range(C):
                 sel = np.flatnonzero(seen_in[:, c])
                 images_c = (self._prev_grey[c], grey[c])
-                if sel.size and cfg.still_px > 0:  # windows that barely move: one LK step
+                dense = sel.size >= STILL_VIEWS_PER_PIXEL * grey[c].size  # the step pays
+                if dense and cfg.still_px > 0:  # windows that barely move: one LK step
                     obs[c, sel] = still_flow(
                         *images_c, start[c, sel], **lk, max_px=cfg.still_px,
                         noise_ratio=cfg.still_noise,
