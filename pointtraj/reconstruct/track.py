@@ -488,24 +488,32 @@ class Tracker:
             check = None  # points in fb_skip_views cameras or more: RANSAC checks their flow
             if self._fb_skip:
                 check = np.count_nonzero(seen_in, axis=1) < self._fb_skip
-            lk = {"window": cfg.lk_window}
             for c in range(C):
                 sel = np.flatnonzero(seen_in[:, c])
-                images_c = (self._prev_grey[c], grey[c])
                 dense = sel.size >= STILL_VIEWS_PER_PIXEL * grey[c].size  # the step pays
                 if dense and cfg.still_px > 0:  # windows that barely move: one LK step
                     obs[c, sel] = still_flow(
-                        *images_c, start[c, sel], **lk, max_px=cfg.still_px,
+                        self._prev_grey[c],
+                        grey[c],
+                        start[c, sel],
+                        window=cfg.lk_window,
+                        max_px=cfg.still_px,
                         noise_ratio=cfg.still_noise,
-                    )  # fmt: skip
-                    sel = sel[np.isnan(obs[c, sel, 0])]
-                    still += int(np.count_nonzero(seen_in[:, c])) - sel.size
+                    )
+                    taken = np.isfinite(obs[c, sel, 0])
+                    still += int(taken.sum())
+                    sel = sel[~taken]
                 if sel.size:
                     flowed += sel.size
                     obs[c, sel] = track_flow(
-                        *images_c, start[c, sel], **lk, levels=cfg.lk_levels,
-                        fb_max_px=cfg.fb_max_px, check=None if check is None else check[sel],
-                    )  # fmt: skip
+                        self._prev_grey[c],
+                        grey[c],
+                        start[c, sel],
+                        window=cfg.lk_window,
+                        levels=cfg.lk_levels,
+                        fb_max_px=cfg.fb_max_px,
+                        check=None if check is None else check[sel],
+                    )
         self.flows["still"] += still
         self.flows["pyramidal"] += flowed
         tri_old = triangulate_ransac(rig, obs, self.tri_config)
