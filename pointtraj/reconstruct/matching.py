@@ -766,11 +766,46 @@ def match_pairs(
     return out
 
 
+def without_near(features: Features, pixels: np.ndarray, radius_px: float) -> Features:
+    """The features farther than ``radius_px`` from every one of ``pixels``.
+
+    Parameters
+    ----------
+    features : Features
+        F keypoints of one image.
+    pixels : (Q, 2) float ndarray
+        Pixels of the same image (distorted; NaN rows are ignored).
+    radius_px : float
+
+    Returns
+    -------
+    Features
+        The kept keypoints, in their order, with their descriptors.
+    """
+    from scipy.spatial import cKDTree
+
+    pts = check_array("pixels", pixels, (None, 2))
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) == 0 or len(features) == 0 or radius_px <= 0:
+        return features
+    d, _ = cKDTree(pts).query(features.pixels, k=1, distance_upper_bound=radius_px)
+    keep = np.flatnonzero(~np.isfinite(d))
+    return Features(
+        features.pixels[keep],
+        features.descriptors[keep],
+        [features.keypoints[i] for i in keep],
+        features.size,
+    )
+
+
 def match_frame(
     rig: CameraRig,
     images: list[np.ndarray],
     edges: np.ndarray,
     config: MatchingConfig | None = None,
+    *,
+    skip: np.ndarray | None = None,
+    skip_px: float = 0.0,
 ) -> MultiViewTracks:
     """Dense multi-view correspondences of one time instant.
 
@@ -782,6 +817,13 @@ def match_frame(
     edges : (E, 2) int ndarray
         Camera pairs to match (the connectivity graph's edges).
     config : MatchingConfig, optional
+    skip : (C, Q, 2) float ndarray, optional
+        Pixels (distorted, NaN where absent) around which no feature is matched: the
+        tracker's live trajectories (``[reconstruct] match_skip_px``). The features are
+        detected on the whole image as without it, and those within ``skip_px`` of one of
+        these pixels of their camera are left out (:func:`without_near`).
+    skip_px : float
+        See ``skip``.
 
     Returns
     -------
@@ -801,6 +843,9 @@ def match_frame(
                 f"the rig says {w}x{h}"
             )
     feats = [detect_features(img, cfg) for img in images]
+    if skip is not None:
+        skip = check_array("skip", skip, (len(rig), None, 2))
+        feats = [without_near(f, skip[c], skip_px) for c, f in enumerate(feats)]
     matches = match_pairs(rig, feats, edges, cfg)
     tracks = build_tracks(len(rig), feats, edges, matches)
     logger.info(

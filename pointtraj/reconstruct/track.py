@@ -527,12 +527,8 @@ class Tracker:
         new_tri, new_obs = None, np.zeros((C, 0, 2))
         live_proj, cover = None, np.zeros((C, 0, 2))
         if restart or (t - self._first_frame) % cfg.match_every == 0:
-            tracks = match_frame(rig, images, self.edges, cfg.matching)
-            new_tri, new_obs = self._triangulate_tracks(tracks)
-            keep_new = self._alive(new_tri) & (
-                np.count_nonzero(new_tri.inliers, axis=0) >= cfg.min_views_new
-            )
             cover = np.where(tri_old.inliers[..., None], obs, np.nan)[:, keep_old]
+            observed = cover  # where the live trajectories are followed
             if self._cover_visible and keep_old.any():
                 live_proj, cover = self._cover_pixels(
                     tri_old.points[keep_old],
@@ -540,6 +536,14 @@ class Tracker:
                     cover,
                     st.misses[keep_old],
                 )
+            skip = observed if cfg.match_skip_px > 0 and observed.shape[1] else None
+            tracks = match_frame(
+                rig, images, self.edges, cfg.matching, skip=skip, skip_px=cfg.match_skip_px
+            )
+            new_tri, new_obs = self._triangulate_tracks(tracks)
+            keep_new = self._alive(new_tri) & (
+                np.count_nonzero(new_tri.inliers, axis=0) >= cfg.min_views_new
+            )
             new_pix = np.where(new_tri.inliers[..., None], new_obs, np.nan)
             covered = covered_by(cover, new_pix, cfg.cover_px, cfg.cover_views)
             keep_new &= ~covered

@@ -19,6 +19,7 @@ from pointtraj.reconstruct.matching import (
     match_frame,
     match_pair,
     resolve_ambiguous,
+    without_near,
 )
 
 
@@ -176,6 +177,46 @@ def test_match_frame_observations_triangulate_onto_the_plane(plane_scene):
     assert np.median(np.abs(tri.points[ok, 2])) < 0.01
     inside = np.all(np.abs(tri.points[ok, :2]) <= 1.01, axis=1)
     assert inside.mean() > 0.99
+
+
+def test_match_frame_skips_features_near_live_pixels(plane_scene):
+    """``skip``: the tracker's live pixels. The features within ``skip_px`` of them are not
+    matched, so no track has an observation there, and the left half of every image (the
+    pixels given) loses its tracks while the right half keeps the same ones."""
+    rig, images = plane_scene
+    cfg = MatchingConfig(num_features=2000)
+    edges = np.array([[0, 1], [1, 2], [0, 2]])
+    full = match_frame(rig, images, edges, cfg)
+    feats = [detect_features(im, cfg) for im in images]
+    # every feature of the left half of each image, as if a live trajectory observed it there
+    skip = np.full((3, max(len(f) for f in feats), 2), np.nan)
+    for c, f in enumerate(feats):
+        left = f.pixels[f.pixels[:, 0] < 240]
+        skip[c, : len(left)] = left
+    part = match_frame(rig, images, edges, cfg, skip=skip, skip_px=1.0)
+    assert 0 < part.num_tracks < 0.8 * full.num_tracks
+    obs = part.observations
+    seen = np.isfinite(obs[..., 0])
+    assert not np.any(obs[..., 0][seen] < 240 - 1.0)  # nothing matched on the skipped half
+
+    # the tracks wholly in the right halves are found as before
+    def right_tracks(t):
+        o = t.observations
+        ok = np.all(~np.isfinite(o[..., 0]) | (o[..., 0] > 250), axis=0)
+        return {
+            tuple(np.round(np.nan_to_num(o[:, i], nan=-1), 2).ravel()) for i in np.flatnonzero(ok)
+        }
+
+    a, b = right_tracks(full), right_tracks(part)
+    assert len(a) > 100 and len(a & b) >= 0.9 * len(a)
+    # no pixels, or radius 0: every feature
+    f0 = feats[0]
+    assert len(without_near(f0, np.full((4, 2), np.nan), 2.0)) == len(f0)
+    assert len(without_near(f0, f0.pixels[:10], 0.0)) == len(f0)
+    kept = without_near(f0, f0.pixels[:10], 0.5)
+    assert len(kept) == len(f0) - 10 and len(kept.keypoints) == len(kept.descriptors)
+    with pytest.raises(ValidationError, match="skip"):
+        match_frame(rig, images, edges, cfg, skip=skip[:2], skip_px=1.0)
 
 
 def test_match_frame_validates_inputs(plane_scene):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pointtraj.errors import FileFormatError
+from pointtraj.errors import FileFormatError, ValidationError
 from pointtraj.reconstruct.config import ReconstructConfig, rig_choices
 from pointtraj.reconstruct.densify import DensifyConfig
 from pointtraj.reconstruct.matching import GMS_THRESHOLD, MatchingConfig
@@ -34,6 +34,8 @@ def test_for_rig_chooses_from_baselines_and_resolution(preset, guided, gms, dens
     assert cfg.matching.gms_threshold == gms
     assert cfg.densify.enabled is densify
     assert cfg.cover_visible == cover
+    # matching skips the features on live trajectories only where they cover every camera
+    assert cfg.match_skip_px == (0.5 * cfg.cover_px if cover == "on" else 0.0)
     assert "rig-derived settings" in caplog.text and "from the rig" in caplog.text
     # Resolved once: nothing is left to choose, nothing is logged again.
     caplog.clear()
@@ -53,6 +55,9 @@ def test_for_rig_keeps_what_is_set(caplog):
     assert cfg.matching.guided is False and cfg.matching.gms_threshold == 6.0
     assert cfg.densify.enabled is False
     assert "guided off (set)" in caplog.text and "densification off (set)" in caplog.text
+    assert ReconstructConfig(match_skip_px=2.0).for_rig(make_rig("ring8")).match_skip_px == 2.0
+    with pytest.raises(ValidationError, match="match_skip_px"):
+        ReconstructConfig(match_skip_px=-1.0)
 
 
 def test_rig_choices_figures():
