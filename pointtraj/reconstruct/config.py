@@ -417,9 +417,9 @@ class ReconstructConfig:
 
 #: ``match_skip_px`` left to the rig, where live trajectories cover every camera where they
 #: are visible (``cover_visible``): this fraction of ``cover_px``. On paper69 frames 0-9, half
-#: of ``cover_px`` (1.5 px) left out a third of the features and kept the mean coverage of the
-#: parts; all of it (3 px, around every visible projection too) left out 86 % and lowered the
-#: ball's coverage from 0.83 to 0.81 (``docs/reconstruction.md``).
+#: of ``cover_px`` (1.5 px) left out 42 % of the features at frame 3 and kept the mean coverage
+#: of the parts; all of it (3 px, around every visible projection too) left out 86 % and lowered
+#: the ball's coverage from 0.83 to 0.81 (``docs/reconstruction.md``).
 MATCH_SKIP_COVER = 0.5
 #: Megapixels (median image) from which a rig's images are large: the default 12,000
 #: features then lie fewer than 20,000 to the megapixel, too sparse to cover the surfaces, and
