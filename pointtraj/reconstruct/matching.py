@@ -766,6 +766,33 @@ def match_pairs(
     return out
 
 
+def near_pixels(pixels: np.ndarray, queries: np.ndarray, radius_px: float) -> np.ndarray:
+    """Which queries lie within ``radius_px`` of one of ``pixels`` (a k-d tree query).
+
+    Parameters
+    ----------
+    pixels : (Q, 2) float ndarray
+        Pixels of one image (NaN rows are ignored).
+    queries : (M, 2) float ndarray
+        Pixels of the same image (NaN rows are never near).
+    radius_px : float
+
+    Returns
+    -------
+    (M,) bool ndarray
+    """
+    from scipy.spatial import cKDTree
+
+    pts = pixels[np.all(np.isfinite(pixels), axis=1)]
+    ok = np.all(np.isfinite(queries), axis=1)
+    near = np.zeros(len(queries), bool)
+    if len(pts) == 0 or not ok.any():
+        return near
+    d, _ = cKDTree(pts).query(queries[ok], k=1, distance_upper_bound=radius_px)
+    near[np.flatnonzero(ok)[np.isfinite(d)]] = True
+    return near
+
+
 def without_near(features: Features, pixels: np.ndarray, radius_px: float) -> Features:
     """The features farther than ``radius_px`` from every one of ``pixels``.
 
@@ -782,14 +809,10 @@ def without_near(features: Features, pixels: np.ndarray, radius_px: float) -> Fe
     Features
         The kept keypoints, in their order, with their descriptors.
     """
-    from scipy.spatial import cKDTree
-
     pts = check_array("pixels", pixels, (None, 2))
-    pts = pts[np.all(np.isfinite(pts), axis=1)]
-    if len(pts) == 0 or len(features) == 0 or radius_px <= 0:
+    if len(features) == 0 or radius_px <= 0:
         return features
-    d, _ = cKDTree(pts).query(features.pixels, k=1, distance_upper_bound=radius_px)
-    keep = np.flatnonzero(~np.isfinite(d))
+    keep = np.flatnonzero(~near_pixels(pts, features.pixels, radius_px))
     return Features(
         features.pixels[keep],
         features.descriptors[keep],

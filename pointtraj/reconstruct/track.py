@@ -28,7 +28,7 @@ from ..geometry import axis_angles
 from ..trajectories import quantize_visibility
 from .config import ReconstructConfig
 from .flow import STILL_VIEWS_PER_PIXEL, expand_views, still_flow, to_grey, track_flow
-from .matching import MultiViewTracks, match_frame, resolve_ambiguous
+from .matching import MultiViewTracks, match_frame, near_pixels, resolve_ambiguous
 from .survive import carry_one_view, predict_rigid
 from .views import (
     depth_uncertainty,
@@ -244,18 +244,11 @@ def covered_by(
         True where, in at least ``min_views`` cameras, some live observation lies within
         ``radius_px`` of the new point's observation.
     """
-    from scipy.spatial import cKDTree
-
     live = check_array("live_pixels", live_pixels, (None, None, 2))
     new = check_array("new_pixels", new_pixels, (live.shape[0], None, 2))
     hits = np.zeros(new.shape[1], np.int64)
     for c in range(live.shape[0]):  # one vectorised KD-tree query per camera
-        lv = live[c][np.all(np.isfinite(live[c]), axis=1)]
-        q = np.all(np.isfinite(new[c]), axis=1)
-        if lv.shape[0] == 0 or not q.any():
-            continue
-        d, _ = cKDTree(lv).query(new[c][q], k=1, distance_upper_bound=radius_px)
-        hits[np.flatnonzero(q)[np.isfinite(d)]] += 1
+        hits += near_pixels(live[c], new[c], radius_px)
     return hits >= min_views
 
 
