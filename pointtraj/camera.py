@@ -25,6 +25,7 @@ from .geometry import (
     N_DIST,
     _no_distortion_xy,
     distort_normalized,
+    finite_rows,
     rodrigues_from_rotation,
     rotation_from_rodrigues,
     undistort_normalized,
@@ -45,6 +46,12 @@ logger = logging.getLogger(__name__)
 _ALLOWED_DIST_LENGTHS = (0, 4, 5, 8)
 #: Tolerance on ``R^T R = I`` and ``det R = 1`` when validating rotations.
 ROTATION_TOL = 1e-5
+#: :meth:`CameraRig.normalized` and :meth:`CameraRig.undistort_pixels` work on the finite pixels
+#: alone where they are fewer than this share of a (C, N) array (each camera observes a few of
+#: the points; the same values).
+SPARSE_UNDISTORT = 0.15
+#: :meth:`CameraRig.subset` keeps this many subsets of a rig (one per camera of a 256-camera rig).
+KEPT_SUBSETS = 256
 
 
 def _pad_dist(name: str, dist: object) -> np.ndarray:
@@ -329,6 +336,7 @@ class CameraRig(Sequence[Camera]):
         self._max_r2 = self._valid_radius2()
         for a in (self.K, self.R, self.C, self.dist, self.sizes, self._max_r2):
             a.flags.writeable = False
+        self._subsets: dict[tuple[int | str, ...], CameraRig] = {}
 
     # -- sequence protocol -------------------------------------------------------------------
     def __len__(self) -> int:
@@ -360,8 +368,19 @@ class CameraRig(Sequence[Camera]):
         raise ValidationError(f"no camera named {name!r}; the rig has {', '.join(self.names)}")
 
     def subset(self, cameras: Iterable[int | str]) -> CameraRig:
-        """A rig made of some cameras, by index or name."""
-        return CameraRig([self[c] for c in cameras])
+        """A rig made of some cameras, by index or name.
+
+        The first :data:`KEPT_SUBSETS` subsets asked for are kept (a rig's arrays are
+        read-only): densification asks for the same one per reference camera every frame,
+        and making one bounds every camera's lens anew.
+        """
+        key = tuple(c if isinstance(c, str) else int(c) for c in cameras)
+        sub = self._subsets.get(key)
+        if sub is None:
+            sub = CameraRig([self[c] for c in key])
+            if len(self._subsets) < KEPT_SUBSETS:
+                self._subsets[key] = sub
+        return sub
 
     @property
     def P(self) -> np.ndarray:
@@ -467,11 +486,37 @@ class CameraRig(Sequence[Camera]):
         (C, N, 2) float ndarray
             Ideal pixel coordinates under each camera's K without distortion.
         """
-        xy = self.normalized(pixels)
+        pix = check_array("pixels", pixels, (len(self), None, 2))
+        ok = finite_rows(pix)  # (C, N)
+        if ok.sum() < SPARSE_UNDISTORT * ok.size:  # mostly NaN: only the finite pixels
+            cams, idx = np.nonzero(ok)
+            out = np.full(pix.shape, np.nan)
+            out[cams, idx] = self._ideal(cams, pix[cams, idx])
+            return out
+        xy = self.normalized(pix)
         K = self.K
         u = K[:, None, 0, 0] * xy[..., 0] + K[:, None, 0, 1] * xy[..., 1] + K[:, None, 0, 2]
         v = K[:, None, 1, 1] * xy[..., 1] + K[:, None, 1, 2]
         return np.stack([u, v], axis=-1)
+
+    def undistort_observed(self, pixels: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`undistort_pixels` of the finite pixels alone, as a list.
+
+        Parameters
+        ----------
+        pixels : (C, N, 2) array-like
+            Distorted pixels, NaN where a camera has none.
+
+        Returns
+        -------
+        cams, columns : (M,) int64 ndarrays
+            Where the finite pixels are, camera by camera (``np.nonzero``'s order).
+        ideal : (M, 2) float ndarray
+            Their ideal pixels (the values :meth:`undistort_pixels` gives there).
+        """
+        pix = check_array("pixels", pixels, (len(self), None, 2))
+        cams, idx = np.nonzero(finite_rows(pix))
+        return cams, idx, self._ideal(cams, pix[cams, idx])
 
     def normalized(self, pixels: object) -> np.ndarray:
         """Undistorted normalised coordinates ``(X/Z, Y/Z)`` of distorted pixels.
@@ -485,10 +530,36 @@ class CameraRig(Sequence[Camera]):
         (C, N, 2) float ndarray
         """
         pix = check_array("pixels", pixels, (len(self), None, 2))
+        ok = finite_rows(pix)  # (C, N)
+        if ok.sum() < SPARSE_UNDISTORT * ok.size:  # mostly NaN: only the finite pixels
+            cams, idx = np.nonzero(ok)
+            out = np.full(pix.shape, np.nan)
+            out[cams, idx] = self._normalized_at(cams, pix[cams, idx])
+            return out
         K = self.K
         y = (pix[..., 1] - K[:, None, 1, 2]) / K[:, None, 1, 1]
         x = (pix[..., 0] - K[:, None, 0, 2] - K[:, None, 0, 1] * y) / K[:, None, 0, 0]
-        return undistort_normalized(np.stack([x, y], axis=-1), self.dist)
+        xy = np.stack([x, y], axis=-1)
+        return undistort_normalized(xy, self.dist) if self._projection_constants[1] else xy
+
+    def _normalized_at(self, cams: np.ndarray, pix: np.ndarray) -> np.ndarray:
+        """:meth:`normalized` of pixels (M, 2) of the cameras ``cams`` (M,), each with its
+        camera's K and lens: the values of the whole (C, N, 2) form, element by element."""
+        Kc = self.K[cams]  # (M, 3, 3)
+        y = (pix[:, 1] - Kc[:, 1, 2]) / Kc[:, 1, 1]
+        x = (pix[:, 0] - Kc[:, 0, 2] - Kc[:, 0, 1] * y) / Kc[:, 0, 0]
+        xy = np.stack([x, y], axis=-1)
+        if not self._projection_constants[1]:
+            return xy
+        return undistort_normalized(xy[:, None, :], self.dist[cams])[:, 0]  # a row per pixel
+
+    def _ideal(self, cams: np.ndarray, pix: np.ndarray) -> np.ndarray:
+        """:meth:`undistort_pixels` of pixels (M, 2) of the cameras ``cams`` (M,)."""
+        xy = self._normalized_at(cams, pix)
+        Kc = self.K[cams]
+        u = Kc[:, 0, 0] * xy[:, 0] + Kc[:, 0, 1] * xy[:, 1] + Kc[:, 0, 2]
+        v = Kc[:, 1, 1] * xy[:, 1] + Kc[:, 1, 2]
+        return np.stack([u, v], axis=-1)
 
     def rays(self, pixels: object) -> tuple[np.ndarray, np.ndarray]:
         """Back-project pixels into world rays, camera by camera.

@@ -23,6 +23,7 @@ import numpy as np
 
 from .atomic import atomic_path, save_npz_atomic, verify_file
 from .errors import FileFormatError, ValidationError, check_array
+from .geometry import finite_rows
 
 if TYPE_CHECKING:  # pragma: no cover
     import open3d as o3d
@@ -660,7 +661,7 @@ class Trajectories:
         """
         xyz = check_array("xyz", xyz, (None, None, 3))
         M, T, _ = xyz.shape
-        alive = np.all(np.isfinite(xyz), axis=2)  # (M, T)
+        alive = finite_rows(xyz)  # (M, T)
         if not np.all(alive.any(axis=1)):
             raise ValidationError("from_dense: every trajectory needs at least one finite frame")
         first = np.argmax(alive, axis=1)

@@ -300,3 +300,27 @@ def test_look_at_points_at_target():
     assert pix[1, 1] < 40.0  # world up is image up
     with pytest.raises(ValidationError, match="coincide"):
         Camera.look_at("c", [1, 1, 1], [1, 1, 1], (10, 10), 5.0)
+
+
+@pytest.mark.parametrize("share", [0.02, 0.1, 0.5, 1.0])
+def test_sparse_undistortion_gives_the_dense_values_bit_for_bit(share, monkeypatch):
+    """Mostly-NaN pixels (each camera observes a few points) are undistorted one by one, with
+    each camera's K and lens: the same bits as the whole-array form, on a rig mixing lenses
+    and pinholes, with pixels far outside the images too."""
+    import pointtraj.camera as camera
+
+    rng = np.random.default_rng(11)
+    rig = make_rig(rng, [CALISCOPE_DIST, RATIONAL_DIST, [0.0] * 5, CALISCOPE_DIST])
+    pix = rng.uniform([-300, -300], [1600, 1000], size=(len(rig), 5000, 2))
+    pix[rng.random((len(rig), 5000)) > share] = np.nan
+    pix[2] = np.nan  # a camera with no pixel
+    sparse = (rig.undistort_pixels(pix), rig.normalized(pix))
+    cams, cols, ideal = rig.undistort_observed(pix)
+    monkeypatch.setattr(camera, "SPARSE_UNDISTORT", 0.0)  # the whole-array form
+    dense = (rig.undistort_pixels(pix), rig.normalized(pix))
+    for a, b in zip(sparse, dense, strict=True):
+        np.testing.assert_array_equal(a, b)
+    ok = np.all(np.isfinite(pix), axis=2)
+    np.testing.assert_array_equal(np.stack(np.nonzero(ok)), np.stack([cams, cols]))
+    np.testing.assert_array_equal(ideal, dense[0][cams, cols])
+    assert not np.isin(2, cams)

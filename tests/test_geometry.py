@@ -332,3 +332,21 @@ def test_parse_and_resolve_up():
     np.testing.assert_array_equal(up, [0, 0, 1])
     up, _ = resolve_up("auto", _moved(ring_rig(6), Y_DOWN))
     np.testing.assert_allclose(up, [0, -1, 0], atol=1e-9)
+
+
+def test_finite_rows_and_pixel_distance_are_numpys_values():
+    """The column-by-column forms give what the reductions over the last axis give."""
+    rng = np.random.default_rng(2)
+    a = rng.normal(0, 100, size=(7, 300, 2))
+    b = rng.normal(0, 100, size=(7, 300, 2)).astype(np.float32)
+    a[rng.random(a.shape) < 0.2] = np.nan  # one coordinate or both
+    a[0, :3] = [np.inf, 1.0]
+    b[1, :3] = [-np.inf, 2.0]
+    np.testing.assert_array_equal(geometry.finite_rows(a), np.all(np.isfinite(a), axis=-1))
+    xyz = rng.normal(size=(50, 3))
+    xyz[::7, 1] = np.nan
+    np.testing.assert_array_equal(geometry.finite_rows(xyz), np.all(np.isfinite(xyz), axis=1))
+    assert geometry.finite_rows(np.zeros((4, 0))).tolist() == [True] * 4
+    with np.errstate(invalid="ignore"):
+        want = np.linalg.norm(a - b, axis=-1)
+    np.testing.assert_array_equal(geometry.pixel_distance(a, b), want)

@@ -22,7 +22,7 @@ import numpy as np
 from ..atomic import atomic_path, write_text_atomic
 from ..camera import CameraRig
 from ..errors import FileFormatError, ValidationError, check_array
-from ..geometry import axis_angles
+from ..geometry import axis_angles, finite_rows
 
 __all__ = [
     "ConnectivityGraph",
@@ -465,7 +465,7 @@ def common_view(
     xy = rig.normalized(pix)  # (C, n, 2)
     cam = np.concatenate([xy * z[..., None], z[..., None]], axis=-1)  # (C, n, 3)
     pts = (np.einsum("cji,cnj->cni", rig.R, cam) + rig.C[:, None, :]).reshape(-1, 3)
-    ok = np.all(np.isfinite(pts), axis=1)
+    ok = finite_rows(pts)
     pts, owner = pts[ok], np.repeat(np.arange(C), n)[ok]
     proj = rig.project(pts)
     inside = proj.in_image & (proj.depth >= lo[:, None]) & (proj.depth <= hi[:, None])

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
-from ..geometry import axis_angles
+from ..geometry import axis_angles, finite_rows
 from ..scale import SceneLength
 
 logger = logging.getLogger(__name__)
@@ -359,8 +359,9 @@ def _near_grid(points: np.ndarray, us: np.ndarray, vs: np.ndarray, radius: float
 
     The same test as a k-d tree query with ``distance_upper_bound=radius`` (squared
     distances summed over u then v, compared strictly), at O(Q): with ``radius`` below the
-    spacing only the two nearest columns and rows of a point can be that close, and the
-    four around them are tested.
+    spacing only the column and the row on each side of a point can be that close (rounding
+    moves a point's cell by 1e-12 of a spacing, far less than the spacing less the radius),
+    and the four grid points around it are tested.
     """
     near = np.zeros(len(us) * len(vs), bool)
     if len(points) == 0 or len(us) == 0 or len(vs) == 0:
@@ -369,19 +370,19 @@ def _near_grid(points: np.ndarray, us: np.ndarray, vs: np.ndarray, radius: float
     step_v = vs[1] - vs[0] if len(vs) > 1 else np.inf
     iu0 = np.floor((points[:, 0] - us[0]) / step_u) if len(us) > 1 else np.zeros(len(points))
     iv0 = np.floor((points[:, 1] - vs[0]) / step_v) if len(vs) > 1 else np.zeros(len(points))
-    if radius >= min(step_u, step_v):  # more than two columns or rows within reach
+    if radius >= min(step_u, step_v) * (1 - 1e-9):  # more than two columns or rows in reach
         from scipy.spatial import cKDTree
 
         grid = np.stack([g.ravel() for g in np.meshgrid(us, vs)], axis=1)
         d, _ = cKDTree(points).query(grid, k=1, distance_upper_bound=radius)
         return np.isfinite(d)
     r2 = radius * radius
-    for du in (-1, 0, 1, 2):
+    for du in (0, 1):
         iu = iu0 + du
         ok_u = (iu >= 0) & (iu < len(us))
         iu = np.where(ok_u, iu, 0).astype(np.int64)
         d_u = points[:, 0] - us[iu]
-        for dv in (-1, 0, 1, 2):
+        for dv in (0, 1):
             iv = iv0 + dv
             ok = ok_u & (iv >= 0) & (iv < len(vs))
             iv = np.where(ok, iv, 0).astype(np.int64)
@@ -431,7 +432,10 @@ def densify(
     taken_pixels = check_array("taken_pixels", taken_pixels, (C, None, 2))
     ideal_rig = CameraRig([dataclasses.replace(cam, dist=np.zeros(8)) for cam in rig])
     ideal = rig.undistort_pixels(seeds_pixels)  # NaN stays NaN
-    taken = [t[np.all(np.isfinite(t), axis=1)] for t in rig.undistort_pixels(taken_pixels)]
+    cams, _, ideal_taken = rig.undistort_observed(taken_pixels)  # camera by camera
+    good = finite_rows(ideal_taken)  # (a lens model can fail far outside the image)
+    cams, ideal_taken = cams[good], ideal_taken[good]
+    taken = np.split(ideal_taken, np.cumsum(np.bincount(cams, minlength=C))[:-1])
     angles = axis_angles(rig)
     np.fill_diagonal(angles, np.inf)
     half = (cfg.patch_size - 1) / 2
@@ -446,7 +450,7 @@ def densify(
     for _ in range(cfg.rounds):
         round_X, round_seen, round_pix = [], [], []
         # the seeds' observing cameras (C, N), once a round rather than once a reference camera
-        observed = np.all(np.isfinite(pix), axis=2) & np.all(np.isfinite(xyz), axis=1)
+        observed = finite_rows(pix) & finite_rows(xyz)
         for r in range(C):
             if total >= cfg.max_points:
                 break

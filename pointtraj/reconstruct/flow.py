@@ -14,7 +14,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import check_array
-from ..geometry import axis_angles
+from ..geometry import axis_angles, finite_rows
 
 __all__ = ["track_flow", "still_flow", "expand_views", "to_grey"]
 
@@ -134,7 +134,7 @@ def track_flow(
 
     p = check_array("points", points, (None, 2))
     out = np.full(p.shape, np.nan, np.float32)
-    idx = np.flatnonzero(np.all(np.isfinite(p), axis=1))
+    idx = np.flatnonzero(finite_rows(p))
     if idx.size == 0:
         return out
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
@@ -195,7 +195,7 @@ def still_flow(
     out = np.full(p.shape, np.nan, np.float32)
     h, w = prev_grey.shape[:2]
     half = window // 2
-    ok = np.all(np.isfinite(p), axis=1)
+    ok = finite_rows(p)
     q = np.rint(np.where(ok[:, None], p, 0.0)).astype(np.int64)
     ok &= (q[:, 0] >= half) & (q[:, 0] < w - half) & (q[:, 1] >= half) & (q[:, 1] < h - half)
     idx = np.flatnonzero(ok)
@@ -286,7 +286,7 @@ def expand_views(
     N = pix.shape[1]
     cand = check_array("candidates", candidates, (C, N), dtype=bool)
     out = pix.copy()
-    observed = np.all(np.isfinite(pix), axis=2)  # (C, N)
+    observed = finite_rows(pix)  # (C, N)
     cand = cand & ~observed & observed.any(axis=0)[None, :]
     if not cand.any():
         return out
@@ -309,7 +309,7 @@ def expand_views(
             out[c, n[good]] = p1[good]
     logger.debug(
         "view expansion: %d of %d candidate views accepted",
-        int(np.all(np.isfinite(out), axis=2).sum() - observed.sum()),
+        int(finite_rows(out).sum() - observed.sum()),
         int(cand.sum()),
     )
     return out

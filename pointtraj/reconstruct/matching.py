@@ -21,7 +21,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
-from ..geometry import undistort_normalized
+from ..geometry import finite_rows, undistort_normalized
 
 __all__ = [
     "MatchingConfig",
@@ -783,8 +783,8 @@ def near_pixels(pixels: np.ndarray, queries: np.ndarray, radius_px: float) -> np
     """
     from scipy.spatial import cKDTree
 
-    pts = pixels[np.all(np.isfinite(pixels), axis=1)]
-    ok = np.all(np.isfinite(queries), axis=1)
+    pts = pixels[finite_rows(pixels)]
+    ok = finite_rows(queries)
     near = np.zeros(len(queries), bool)
     if len(pts) == 0 or not ok.any():
         return near

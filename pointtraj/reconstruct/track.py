@@ -24,7 +24,7 @@ import numpy as np
 
 from ..camera import CameraRig, Projection
 from ..errors import ValidationError, check_array
-from ..geometry import axis_angles
+from ..geometry import axis_angles, finite_rows, pixel_distance
 from ..trajectories import quantize_visibility
 from .config import ReconstructConfig
 from .flow import STILL_VIEWS_PER_PIXEL, expand_views, still_flow, to_grey, track_flow
@@ -271,7 +271,7 @@ def sample_colors(
     """
     pix = check_array("pixels", pixels, (len(images), None, 2))
     N = pix.shape[1]
-    vis = np.where(np.all(np.isfinite(pix), axis=2).T, visibility, -1.0)  # (N, C)
+    vis = np.where(finite_rows(pix).T, visibility, -1.0)  # (N, C)
     best = np.argmax(vis, axis=1) if N else np.zeros(0, np.int64)
     out = np.full((N, 3), 128, np.uint8)
     has = vis[np.arange(N), best] >= 0 if N else np.zeros(0, bool)
@@ -424,6 +424,9 @@ class Tracker:
                 self.config.max_pairs_per_camera,
             )
         self._prev_grey: list[np.ndarray] | None = None
+        # the live points' projection (C, N, 2) at the end of a step, with the state it
+        # belongs to: the next step's flow starts there (``lk_start = "projection"``)
+        self._projected: tuple[TrackState, np.ndarray] | None = None
         self._first_frame = first_frame
         #: Why trajectories ended, counted over the frames stepped (:data:`STOP_REASONS`).
         self.stops: dict[str, int] = dict.fromkeys(STOP_REASONS, 0)
@@ -474,7 +477,10 @@ class Tracker:
         still = flowed = 0  # views tracked by one step, and by the pyramidal flow
         if len(st):
             if cfg.lk_start == "projection":
-                start = rig.project(st.xyz).pixels  # (C, N, 2)
+                if self._projected is not None and self._projected[0] is st:
+                    start = self._projected[1]  # (C, N, 2), kept by the last step
+                else:
+                    start = rig.project(st.xyz).pixels
             else:
                 start = st.pixels.astype(np.float64)
             seen_in = st.visibility > cfg.visibility_threshold  # (N, C)
@@ -601,6 +607,9 @@ class Tracker:
             misses[seen],
         )
         self._prev_grey = grey
+        self._projected = None
+        if proj is not None and cfg.lk_start == "projection":
+            self._projected = (self.state, proj.pixels[:, seen])
         logger.info(
             "frame %d: %d tracked of %d (%.0f %% of their views still), %d new, %d live",
             t,
@@ -634,9 +643,7 @@ class Tracker:
         cfg = self.config
         carried = np.zeros(len(st), bool)
         cand = np.flatnonzero(
-            ~triangulated
-            & (st.lone < cfg.survive.frames)
-            & np.all(np.isfinite(obs), axis=2).any(axis=0)
+            ~triangulated & (st.lone < cfg.survive.frames) & finite_rows(obs).any(axis=0)
         )
         if cand.size == 0:  # (too few neighbours: predict_rigid predicts nothing)
             return tri, carried
@@ -719,14 +726,14 @@ class Tracker:
         if n_old:
             every, max_every = retry_periods(cfg.views, C)
             due[:, :n_old] = retry_due(misses[:n_old], old_ids, t, every, max_every)
-            one_view = np.all(np.isfinite(pix[:, :n_old]), axis=2).sum(axis=0) < 2
+            one_view = finite_rows(pix[:, :n_old]).sum(axis=0) < 2
             due[:, :n_old] |= one_view[None, :]
         grown, searched = discover_views(
             self.rig, images, xyz, pix, cand & due, cfg.views, sigma_px=cfg.sigma_px
         )
         before = xyz
         xyz, vis, err, pix = self._retriangulate(xyz, vis, err, pix, grown)
-        misses = record_misses(misses, cand, due, np.all(np.isfinite(pix), axis=2))
+        misses = record_misses(misses, cand, due, finite_rows(pix))
         moved = np.flatnonzero(np.any(xyz != before, axis=1))
         if moved.size:
             proj = _update_projection(self.rig, proj, xyz, moved)
@@ -749,27 +756,25 @@ class Tracker:
         a view stays only where the RANSAC keeps it as an inlier."""
         from .triangulate import triangulate_ransac
 
-        more = np.flatnonzero(
-            np.all(np.isfinite(grown), axis=2).sum(axis=0)
-            > np.all(np.isfinite(pix), axis=2).sum(axis=0)
-        )
+        views_before = finite_rows(pix)  # (C, N)
+        more = np.flatnonzero(finite_rows(grown).sum(axis=0) > views_before.sum(axis=0))
         if more.size == 0:
             return xyz, vis, err, pix
         tri = triangulate_ransac(self.rig, grown[:, more], self.tri_config)
         ok = self._alive(tri)
         idx = more[ok]
-        views_before = np.all(np.isfinite(pix), axis=2).sum()
         xyz, vis, err, pix = xyz.copy(), vis.copy(), err.copy(), pix.copy()
         xyz[idx] = tri.points[ok]
         vis[idx] = tri.visibility[ok]
         err[idx] = tri.mean_error[ok]
         pix[:, idx] = np.where(tri.inliers[:, ok, None], grown[:, idx], np.nan)
-        logger.debug(
-            "view expansion: %d points gained views (%.2f views per point, was %.2f)",
-            idx.size,
-            np.all(np.isfinite(pix), axis=2).sum() / max(len(xyz), 1),
-            views_before / max(len(xyz), 1),
-        )
+        if logger.isEnabledFor(logging.DEBUG):  # counting the views costs a pass over pix
+            logger.debug(
+                "view expansion: %d points gained views (%.2f views per point, was %.2f)",
+                idx.size,
+                finite_rows(pix).sum() / max(len(xyz), 1),
+                views_before.sum() / max(len(xyz), 1),
+            )
         return xyz, vis, err, pix
 
     def _densify(
@@ -832,7 +837,7 @@ class Tracker:
         lone = ended & was_lone
         self.stops["one-view"] += int(lone.sum())
         ended &= ~was_lone
-        flows = np.count_nonzero(np.all(np.isfinite(obs), axis=2), axis=0)  # (N,)
+        flows = np.count_nonzero(finite_rows(obs), axis=0)  # (N,)
         lost_flow = ended & ~kept & (flows < self.config.min_views)
         self.stops["flow"] += int(lost_flow.sum())
         self.stops["triangulation"] += int((ended & ~kept & ~lost_flow).sum())
@@ -869,7 +874,7 @@ class Tracker:
         from .views import _directions, _facing
 
         proj = self.rig.project(xyz)
-        seen = np.all(np.isfinite(pix), axis=2)
+        seen = finite_rows(pix)
         to_cams = _directions(self.rig, xyz).astype(np.float32)  # (C, N, 3)
         front = np.einsum("cnk,nk->cn", to_cams, _facing(seen, to_cams)) > 0
         visible = proj.in_image & front & ~self._occluded(xyz, vis, proj, misses).T  # (C, N)
@@ -958,11 +963,18 @@ def _image_motion(obs: np.ndarray, previous: np.ndarray) -> np.ndarray:
     (N,) float64 ndarray
         The median displacement in pixels over the cameras with both; 0 where there is none.
     """
-    step = np.linalg.norm(obs - previous, axis=2)  # (C, N)
-    has = np.isfinite(step).any(axis=0)
+    step = pixel_distance(obs, previous)  # (C, N)
+    count = np.count_nonzero(~np.isnan(step), axis=0)  # (N,) values, infinite ones too
+    has = np.flatnonzero(np.isfinite(step).any(axis=0))
     motion = np.zeros(step.shape[1])
-    if has.any():
-        motion[has] = np.nanmedian(step[:, has], axis=0)
+    if has.size:
+        # nanmedian's values at a fraction of its cost: sorted (NaN last), the mean of the
+        # middle two finite values (the middle one twice for an odd count)
+        srt = np.sort(step[:, has], axis=0)
+        k = count[has]
+        lo = srt[(k - 1) // 2, np.arange(has.size)]
+        hi = srt[k // 2, np.arange(has.size)]
+        motion[has] = (lo + hi) / 2.0
     return motion
 
 
@@ -988,7 +1000,7 @@ def _union(
     vis = np.concatenate([tri.visibility[keep] for tri, _, keep in parts])
     err = np.concatenate([tri.mean_error[keep] for tri, _, keep in parts])
     pix = np.concatenate(
-        [np.where(tri.inliers[..., None], obs, np.nan)[:, keep] for tri, obs, keep in parts],
+        [np.where(tri.inliers[:, keep, None], obs[:, keep], np.nan) for tri, obs, keep in parts],
         axis=1,
     )
     return xyz, vis, err, pix

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
-from ..geometry import undistort_normalized
+from ..geometry import finite_rows, pixel_distance, undistort_normalized
 from .occlusion import occlusion_test
 
 __all__ = [
@@ -135,7 +135,7 @@ class Triangulation:
     @property
     def valid(self) -> np.ndarray:
         """(N,) bool: the points that were reconstructed."""
-        return np.all(np.isfinite(self.points), axis=1)
+        return finite_rows(self.points)
 
 
 # -- helpers ---------------------------------------------------------------------------------
@@ -308,7 +308,7 @@ def _gauss_newton(
     w = np.where(np.isfinite(x_obs) & (weights > 0), weights, 0.0)  # (N, C)
     ox = np.where(w > 0, x_obs, 0.0)
     oy = np.where(w > 0, y_obs, 0.0)
-    ok = np.all(np.isfinite(X), axis=1)
+    ok = finite_rows(X)
     X = np.where(ok[:, None], X, 0.0)
     for _ in range(iterations):
         X0, X1, X2 = X[:, 0:1], X[:, 1:2], X[:, 2:3]  # (N, 1)
@@ -549,7 +549,7 @@ def triangulate_points(rig: CameraRig, observations: np.ndarray) -> np.ndarray:
     True
     """
     obs = _check_observations(rig, observations)
-    observed = np.all(np.isfinite(obs), axis=-1)  # (C, N)
+    observed = finite_rows(obs)  # (C, N)
     frame = _conditioned_frame(rig)
     x, y = _normalized(rig, obs, observed)
     Xn = _dlt(frame.Rt, x, y, observed.T)
@@ -641,7 +641,7 @@ def _triangulate_chunk(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`triangulate_ransac` on (C, n, 2) observations; returns its five arrays."""
     C, N = obs.shape[:2]
-    observed = np.all(np.isfinite(obs), axis=-1)  # (C, N)
+    observed = finite_rows(obs)  # (C, N)
     n_obs = np.count_nonzero(observed, axis=0)  # (N,)
     x, y = _normalized(rig, obs, observed)  # (N, C) each
     K = rig.K
@@ -676,7 +676,7 @@ def _triangulate_chunk(
     Xn = _gauss_newton(frame.Rt, K, x, y, inl, Xn, config.refine_iterations)
     X = frame.origin + frame.scale * Xn
     proj = rig.project(X)
-    errors = np.linalg.norm(proj.pixels - obs, axis=-1)  # (C, N)
+    errors = pixel_distance(proj.pixels, obs)  # (C, N)
     with np.errstate(invalid="ignore"):
         new = (errors < config.threshold_px).T  # (N, C)
     changed = np.flatnonzero(np.any(new != inl, axis=1) & (new.sum(axis=1) >= config.min_views))
@@ -695,11 +695,11 @@ def _triangulate_chunk(
         pc = rig.project(X[changed])
         proj.pixels[:, changed] = pc.pixels
         proj.in_image[:, changed] = pc.in_image
-        errors[:, changed] = np.linalg.norm(pc.pixels - obs[:, changed], axis=-1)
+        errors[:, changed] = pixel_distance(pc.pixels, obs[:, changed])
         with np.errstate(invalid="ignore"):
             new[changed] = (errors[:, changed] < config.threshold_px).T
     inl = new.T  # (C, N)
-    failed = (np.count_nonzero(inl, axis=0) < config.min_views) | ~np.all(np.isfinite(X), 1)
+    failed = (np.count_nonzero(inl, axis=0) < config.min_views) | ~finite_rows(X)
     X[failed] = np.nan
     inl = inl & ~failed
     errors[:, failed] = np.nan

@@ -170,5 +170,16 @@ def test_image_motion_is_the_median_over_the_following_cameras():
     obs[2, 2] = [np.nan, 1.0]  # point 2: no camera follows it
     previous = np.zeros((3, 3, 2))
     np.testing.assert_allclose(_image_motion(obs, previous), [1.0, 2.0, 0.0])
+    # nanmedian's values bit for bit, with odd and even counts of following cameras
+    rng = np.random.default_rng(5)
+    obs = rng.normal(0, 3, size=(12, 2000, 2))
+    obs[rng.random((12, 2000)) < 0.7] = np.nan
+    previous = rng.normal(0, 3, size=(12, 2000, 2)).astype(np.float32)
+    step = np.linalg.norm(obs - previous, axis=2)
+    has = np.isfinite(step).any(axis=0)
+    want = np.zeros(2000)
+    want[has] = np.nanmedian(step[:, has], axis=0)
+    assert len(set(np.isfinite(step).sum(axis=0).tolist())) > 4
+    np.testing.assert_array_equal(_image_motion(obs, previous), want)
     with pytest.raises(ValidationError, match="seeds"):
         DensifyConfig(seeds="some")

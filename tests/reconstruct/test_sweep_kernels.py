@@ -78,7 +78,7 @@ def test_densify_early_rejection_and_ncc_blocks_change_no_point(wide_rig, monkey
     assert fast_rows < rows["n"]  # candidates were given up before their last partner
 
 
-@pytest.mark.parametrize("radius", [4.5, 7.0])
+@pytest.mark.parametrize("radius", [4.5, 5.999, 7.0])
 def test_taken_pixels_near_the_grid_as_a_kd_tree_finds_them(radius):
     rng = np.random.default_rng(0)
     us, vs = _grid_axes(480, 360, 6.0, 7.0)
@@ -89,6 +89,8 @@ def test_taken_pixels_near_the_grid_as_a_kd_tree_finds_them(radius):
     angle = rng.uniform(0, 2 * np.pi, 50)
     points = np.vstack([points, g + radius * np.column_stack([np.cos(angle), np.sin(angle)])])
     points = np.vstack([points, grid[:5] + [radius, 0.0]])
+    # on grid points and on the lines between them, where a point's cell is decided by rounding
+    points = np.vstack([points, grid[100:110], grid[200:210] + [3.0, 0.0], grid[300:310] + 1e-13])
     d, _ = cKDTree(points).query(grid, k=1, distance_upper_bound=radius)
     near = _near_grid(points, us, vs, radius)
     np.testing.assert_array_equal(near, np.isfinite(d))

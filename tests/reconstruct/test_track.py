@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from helpers.rigs import ring_rig
@@ -230,3 +232,24 @@ def test_expand_views_finds_points_in_the_cameras_that_miss_them(moving_plane):
     # no camera within the angle: nothing is searched
     none = expand_views(rig, grey, X, pix, cand, max_angle_deg=1.0)
     assert not np.isfinite(none[2]).any()
+
+
+def test_flow_starts_at_the_projection_the_last_step_kept(moving_plane):
+    """The live points' projection kept from the last step is the projection of the state's
+    points: a tracker that projects them afresh every frame gives the same records."""
+    rig, frames = moving_plane
+    cfg = ReconstructConfig(matching=MatchingConfig(num_features=800), occlusion_depth_m=0.05)
+    kept, fresh = Tracker(rig, cfg, edges=EDGES3), Tracker(rig, cfg, edges=EDGES3)
+    for t, imgs in enumerate(frames[:4]):
+        a = kept.step(t, imgs)
+        st, pixels = kept._projected
+        assert st is kept.state
+        np.testing.assert_array_equal(pixels, rig.project(kept.state.xyz).pixels)
+        fresh._projected = None  # projected afresh at its next step
+        b = fresh.step(t, imgs)
+        for name in ("ids", "xyz", "visibility", "error", "color"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert len(a) > 100
+    # a state set from outside (a resumed run) is projected afresh
+    kept.state = dataclasses.replace(kept.state)
+    assert kept._projected[0] is not kept.state
