@@ -392,6 +392,15 @@ def _near_grid(points: np.ndarray, us: np.ndarray, vs: np.ndarray, radius: float
     return near
 
 
+def _in_box(points: np.ndarray, around: np.ndarray, reach: float) -> np.ndarray:
+    """Indices of ``points`` (n, 2) inside the bounding box of ``around`` (m, 2, m > 0) grown
+    by ``reach`` on every side: the only ones that can lie within ``reach`` of one of them."""
+    lo = around.min(axis=0) - reach
+    hi = around.max(axis=0) + reach
+    x, y = points[:, 0], points[:, 1]
+    return np.flatnonzero((x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1]))
+
+
 def densify(
     rig: CameraRig,
     images: Sequence[np.ndarray],
@@ -656,12 +665,20 @@ def _densify_camera(
     )  # (C, S): each seed's observing cameras nearest to r
     us, vs = _grid_axes(cam.width, cam.height, cfg.step_px, margin)
     grid = _grid(cam.width, cam.height, cfg.step_px, margin)
-    d, j = cKDTree(q).query(grid, k=1, distance_upper_bound=cfg.radius_px)
-    keep = np.isfinite(d)
+    # only grid points within the seeds' box, grown by the radius, can be near a seed: the
+    # tree is asked about those alone (the seeds of a moving limb cover a small part of it)
+    near = _in_box(grid, q, cfg.radius_px)
+    keep = np.zeros(len(grid), bool)
+    j = np.zeros(len(grid), np.int64)
+    d, j[near] = cKDTree(q).query(grid[near], k=1, distance_upper_bound=cfg.radius_px)
+    keep[near] = np.isfinite(d)
     if len(taken[r]) and keep.any():
         # no candidate near a taken pixel (a k-d tree of every taken pixel, built for each
-        # reference camera, cost more than the test of the grid points around each of them)
-        keep &= ~_near_grid(taken[r], us, vs, 0.75 * cfg.step_px)
+        # reference camera, cost more than the test of the grid points around each of them);
+        # only the taken pixels within reach of a candidate can take one
+        reach = 0.75 * cfg.step_px
+        t = taken[r][_in_box(taken[r], grid[keep], reach)]
+        keep &= ~_near_grid(t, us, vs, reach)
     cand, j = grid[keep], j[keep]
     ok = partner_mask[:, j].any(axis=0) & (z_seed[j] > 0)
     cand, j = cand[ok], j[ok]
