@@ -303,6 +303,21 @@ class Camera:
         )
 
 
+def _from_pixels(pix: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Normalised coordinates (..., 2) of pixels (..., 2) under intrinsics K (..., 3, 3)
+    broadcast against them (lens distortion not removed)."""
+    y = (pix[..., 1] - K[..., 1, 2]) / K[..., 1, 1]
+    x = (pix[..., 0] - K[..., 0, 2] - K[..., 0, 1] * y) / K[..., 0, 0]
+    return np.stack([x, y], axis=-1)
+
+
+def _to_pixels(xy: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) of normalised coordinates (..., 2) under K (..., 3, 3), broadcast."""
+    u = K[..., 0, 0] * xy[..., 0] + K[..., 0, 1] * xy[..., 1] + K[..., 0, 2]
+    v = K[..., 1, 1] * xy[..., 1] + K[..., 1, 2]
+    return np.stack([u, v], axis=-1)
+
+
 class CameraRig(Sequence[Camera]):
     """An ordered set of cameras with unique names, and vectorised operations over all of them.
 
@@ -487,17 +502,10 @@ class CameraRig(Sequence[Camera]):
             Ideal pixel coordinates under each camera's K without distortion.
         """
         pix = check_array("pixels", pixels, (len(self), None, 2))
-        ok = finite_rows(pix)  # (C, N)
-        if ok.sum() < SPARSE_UNDISTORT * ok.size:  # mostly NaN: only the finite pixels
-            cams, idx = np.nonzero(ok)
-            out = np.full(pix.shape, np.nan)
-            out[cams, idx] = self._ideal(cams, pix[cams, idx])
-            return out
-        xy = self.normalized(pix)
-        K = self.K
-        u = K[:, None, 0, 0] * xy[..., 0] + K[:, None, 0, 1] * xy[..., 1] + K[:, None, 0, 2]
-        v = K[:, None, 1, 1] * xy[..., 1] + K[:, None, 1, 2]
-        return np.stack([u, v], axis=-1)
+        sparse = self._on_finite(pix, self._ideal)
+        if sparse is not None:
+            return sparse
+        return _to_pixels(self.normalized(pix), self.K[:, None])
 
     def undistort_observed(self, pixels: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`undistort_pixels` of the finite pixels alone, as a list.
@@ -530,36 +538,35 @@ class CameraRig(Sequence[Camera]):
         (C, N, 2) float ndarray
         """
         pix = check_array("pixels", pixels, (len(self), None, 2))
-        ok = finite_rows(pix)  # (C, N)
-        if ok.sum() < SPARSE_UNDISTORT * ok.size:  # mostly NaN: only the finite pixels
-            cams, idx = np.nonzero(ok)
-            out = np.full(pix.shape, np.nan)
-            out[cams, idx] = self._normalized_at(cams, pix[cams, idx])
-            return out
-        K = self.K
-        y = (pix[..., 1] - K[:, None, 1, 2]) / K[:, None, 1, 1]
-        x = (pix[..., 0] - K[:, None, 0, 2] - K[:, None, 0, 1] * y) / K[:, None, 0, 0]
-        xy = np.stack([x, y], axis=-1)
+        sparse = self._on_finite(pix, self._normalized_at)
+        if sparse is not None:
+            return sparse
+        xy = _from_pixels(pix, self.K[:, None])
         return undistort_normalized(xy, self.dist) if self._projection_constants[1] else xy
+
+    def _on_finite(self, pix: np.ndarray, at) -> np.ndarray | None:
+        """``at(cams, pixels)`` of the finite pixels of ``pix`` (C, N, 2) alone, in a NaN array
+        of its shape, where they are fewer than :data:`SPARSE_UNDISTORT` of it (each camera
+        observes a few of the points); None where they are not."""
+        ok = finite_rows(pix)  # (C, N)
+        if ok.sum() >= SPARSE_UNDISTORT * ok.size:
+            return None
+        cams, idx = np.nonzero(ok)
+        out = np.full(pix.shape, np.nan)
+        out[cams, idx] = at(cams, pix[cams, idx])
+        return out
 
     def _normalized_at(self, cams: np.ndarray, pix: np.ndarray) -> np.ndarray:
         """:meth:`normalized` of pixels (M, 2) of the cameras ``cams`` (M,), each with its
         camera's K and lens: the values of the whole (C, N, 2) form, element by element."""
-        Kc = self.K[cams]  # (M, 3, 3)
-        y = (pix[:, 1] - Kc[:, 1, 2]) / Kc[:, 1, 1]
-        x = (pix[:, 0] - Kc[:, 0, 2] - Kc[:, 0, 1] * y) / Kc[:, 0, 0]
-        xy = np.stack([x, y], axis=-1)
+        xy = _from_pixels(pix, self.K[cams])
         if not self._projection_constants[1]:
             return xy
         return undistort_normalized(xy[:, None, :], self.dist[cams])[:, 0]  # a row per pixel
 
     def _ideal(self, cams: np.ndarray, pix: np.ndarray) -> np.ndarray:
         """:meth:`undistort_pixels` of pixels (M, 2) of the cameras ``cams`` (M,)."""
-        xy = self._normalized_at(cams, pix)
-        Kc = self.K[cams]
-        u = Kc[:, 0, 0] * xy[:, 0] + Kc[:, 0, 1] * xy[:, 1] + Kc[:, 0, 2]
-        v = Kc[:, 1, 1] * xy[:, 1] + Kc[:, 1, 2]
-        return np.stack([u, v], axis=-1)
+        return _to_pixels(self._normalized_at(cams, pix), self.K[cams])
 
     def rays(self, pixels: object) -> tuple[np.ndarray, np.ndarray]:
         """Back-project pixels into world rays, camera by camera.
