@@ -32,17 +32,16 @@ import numpy as np
 
 
 def _config(path: Path | None, items: list[str]):
-    """The ``[reconstruct]`` table of ``path`` with ``key=value`` items set (``table.key`` for
-    its tables; values in TOML syntax), validated as a pipeline file's."""
+    """The ``[reconstruct]`` tables of ``path`` (:func:`pointtraj.stages.load_reconstruct_config`)
+    with ``key=value`` items set (``table.key`` for its tables; values in TOML syntax),
+    validated as a pipeline file's."""
     import tomllib
 
-    from pointtraj.config import from_mapping, load_toml
+    from pointtraj import stages
+    from pointtraj.config import from_mapping, to_mapping
     from pointtraj.reconstruct.config import ReconstructConfig
 
-    data = load_toml(path) if path else {}
-    table = dict(
-        data.get("reconstruct", data) if isinstance(data.get("reconstruct"), dict) else data
-    )
+    table = to_mapping(stages.load_reconstruct_config(path))
     for item in items:
         key, text = item.split("=", 1)
         value = tomllib.loads(f"v = {text}")["v"]

@@ -26,6 +26,7 @@ from .geometry import (
     _no_distortion_xy,
     distort_normalized,
     finite_rows,
+    pixel_distance,
     rodrigues_from_rotation,
     rotation_from_rodrigues,
     undistort_normalized,
@@ -605,4 +606,4 @@ class CameraRig(Sequence[Camera]):
         """
         obs = check_array("observations", observations, (len(self), None, 2))
         proj = self.project(points)
-        return np.linalg.norm(proj.pixels - obs, axis=-1)
+        return pixel_distance(proj.pixels, obs)

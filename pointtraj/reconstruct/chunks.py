@@ -44,6 +44,7 @@ import numpy as np
 from ..atomic import save_npz_atomic
 from ..camera import CameraRig
 from ..errors import ValidationError
+from ..geometry import pixel_distance
 from ..npzfile import load_npz
 from ..trajectories import Trajectories, dequantize_visibility
 
@@ -350,7 +351,7 @@ def agree_in_shared_cameras(
         px_a = rig.project(np.asarray(xyz_a[sl], np.float64)).pixels  # (C, n, 2)
         px_b = rig.project(np.asarray(xyz_b[sl], np.float64)).pixels
         with np.errstate(invalid="ignore"):
-            near = np.linalg.norm(px_a - px_b, axis=2).T <= tolerance_px  # (n, C)
+            near = pixel_distance(px_a, px_b).T <= tolerance_px  # (n, C)
         keep[sl] = shared.any(axis=1) & (near | ~shared).all(axis=1)
     return keep
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
-from ..geometry import finite_rows, undistort_normalized
+from ..geometry import finite_rows, pixel_distance, undistort_normalized
 
 __all__ = [
     "MatchingConfig",
@@ -718,7 +718,7 @@ def resolve_ambiguous(rig: CameraRig, tracks: MultiViewTracks, points: np.ndarra
     trk = tracks.node_track[amb_nodes]
     proj = rig.project(X[np.unique(trk)])
     col = np.searchsorted(np.unique(trk), trk)
-    err = np.linalg.norm(proj.pixels[cam, col] - tracks.node_pixels[amb_nodes], axis=1)  # (V',)
+    err = pixel_distance(proj.pixels[cam, col], tracks.node_pixels[amb_nodes])  # (V',)
     err = np.where(np.isfinite(err), err, np.inf)
     order = np.lexsort((err, cam, trk))
     key = trk[order] * len(rig) + cam[order]

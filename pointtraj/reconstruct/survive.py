@@ -30,6 +30,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
+from ..geometry import pixel_distance
 from ..scale import SceneLength
 
 if TYPE_CHECKING:
@@ -177,7 +178,7 @@ def carry_one_view(
     obs = check_array("observations", observations, (C, n, 2))
     proj = rig.project(np.where(np.isfinite(Xp), Xp, 0.0))
     with np.errstate(invalid="ignore"):
-        d = np.linalg.norm(proj.pixels - obs, axis=2)  # (C, n), NaN where not tracked
+        d = pixel_distance(proj.pixels, obs)  # (C, n), NaN where not tracked
     d = np.where(np.isfinite(d) & proj.in_image & np.isfinite(Xp).all(axis=1)[None], d, np.inf)
     cam = np.argmin(d, axis=0) if n else np.zeros(0, np.int64)
     best = d[cam, np.arange(n)] if n else np.zeros(0)

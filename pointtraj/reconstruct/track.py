@@ -526,7 +526,7 @@ class Tracker:
         new_tri, new_obs = None, np.zeros((C, 0, 2))
         live_proj, cover = None, np.zeros((C, 0, 2))
         if restart or (t - self._first_frame) % cfg.match_every == 0:
-            cover = np.where(tri_old.inliers[..., None], obs, np.nan)[:, keep_old]
+            cover = np.where(tri_old.inliers[:, keep_old, None], obs[:, keep_old], np.nan)
             observed = cover  # where the live trajectories are followed
             if self._cover_visible and keep_old.any():
                 live_proj, cover = self._cover_pixels(

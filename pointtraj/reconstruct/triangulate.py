@@ -850,7 +850,7 @@ def compute_visibility(
         vis = proj.in_image.astype(np.float32).T  # (N, C)
     else:
         obs = check_array("observations", observations, (len(rig), X.shape[0], 2))
-        e = np.linalg.norm(proj.pixels - obs, axis=-1)  # (C, N), NaN where unobserved
+        e = pixel_distance(proj.pixels, obs)  # (C, N), NaN where unobserved
         vis = _visibility(e, proj.in_image, sigma_px)
     if occlusion_depth is not None:
         occluded = occlusion_test(rig, X, occlusion_depth, cell_px=occlusion_cell_px)  # (N, C)
