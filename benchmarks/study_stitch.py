@@ -94,6 +94,7 @@ def _joins(before, stitched, new_id):
 
 def main() -> None:
     from pointtraj import stages
+    from pointtraj.atomic import write_text_atomic
     from pointtraj.reconstruct.config import ReconstructConfig
     from pointtraj.reconstruct.framestore import FrameStore
     from pointtraj.reconstruct.stitch import stitch_trajectories
@@ -190,7 +191,7 @@ def main() -> None:
         out["variants"][name] = res
         print(name, json.dumps(res))
     if args.json:
-        args.json.write_text(json.dumps(out, indent=1))
+        write_text_atomic(args.json, json.dumps(out, indent=1))
 
 
 if __name__ == "__main__":

@@ -61,7 +61,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("capture", type=Path)
-    ap.add_argument("work", type=Path, help="emptied first")
+    ap.add_argument("work", type=Path, help="emptied first (only a work folder)")
     ap.add_argument("--config", type=Path, default=None, help="TOML with [reconstruct]")
     ap.add_argument("--frames", type=int, default=25, help="frames 0 .. N-1")
     ap.add_argument("overrides", nargs="*", help="[reconstruct] key=value")
@@ -107,6 +107,8 @@ def main() -> None:
     track.Tracker.step = stepped
     cap = Capture.open(args.capture)
     cfg = _config(args.config, args.overrides)
+    if args.work.exists() and any(args.work.iterdir()) and not (args.work / "state").is_dir():
+        ap.error(f"{args.work}: not empty and not a reconstruction's work folder; not emptied")
     shutil.rmtree(args.work, ignore_errors=True)
     args.work.mkdir(parents=True)
     reconstruct_capture(cap, args.work, range(args.frames), cfg)
