@@ -522,10 +522,13 @@ class Tracker:
             tri_old, carried = self._carry(st, obs, tri_old, triangulated)
             keep_old = triangulated | carried
 
-        # 2. dense matching: new points where no live trajectory is
+        # 2. dense matching: new points where no live trajectory is (every match_every
+        # frames); densification grows from the moving points every frame all the same
         new_tri, new_obs = None, np.zeros((C, 0, 2))
         live_proj, cover = None, np.zeros((C, 0, 2))
-        if restart or (t - self._first_frame) % cfg.match_every == 0:
+        matching = restart or (t - self._first_frame) % cfg.match_every == 0
+        densifying = cfg.densify.enabled and (matching or cfg.densify.seeds != "new")
+        if matching or densifying:
             cover = np.where(tri_old.inliers[:, keep_old, None], obs[:, keep_old], np.nan)
             observed = cover  # where the live trajectories are followed
             if self._cover_visible and keep_old.any():
@@ -535,6 +538,7 @@ class Tracker:
                     cover,
                     st.misses[keep_old],
                 )
+        if matching:
             skip = observed if cfg.match_skip_px > 0 and observed.shape[1] else None
             tracks = match_frame(
                 rig, images, self.edges, cfg.matching, skip=skip, skip_px=cfg.match_skip_px
@@ -557,11 +561,11 @@ class Tracker:
         parts = [(tri_old, obs, keep_old)]
         if new_tri is not None:
             parts.append((new_tri, new_obs, keep_new))
-            if cfg.densify.enabled:
-                moved = None  # (N,) tracked points that seed it, with seeds = "moving"
-                if cfg.densify.seeds == "moving":
-                    moved = _image_motion(obs, st.pixels) > cfg.densify.seed_motion_px
-                parts.append(self._densify(grey, prepared, parts, cover, moved))
+        if densifying:
+            moved = None  # (N,) tracked points that seed it, with seeds = "moving"
+            if cfg.densify.seeds == "moving":
+                moved = _image_motion(obs, st.pixels) > cfg.densify.seed_motion_px
+            parts.append(self._densify(grey, prepared, parts, cover, moved))
         xyz, vis, err, pix = _union(parts)
         n_old = int(keep_old.sum())
         old_ids = st.ids[keep_old]

@@ -190,6 +190,30 @@ def test_tracker_restarts_on_a_frame_gap(moving_plane):
         tracker.step(4, frames[4][:2])
 
 
+def test_densification_grows_from_moving_points_between_matched_frames(moving_plane):
+    """With ``match_every = 2`` the odd frames match nothing, but densification still grows
+    from the tracked points that moved (``seeds = "moving"``); from new matches alone
+    (``seeds = "new"``) it has no seed there."""
+    from pointtraj.reconstruct.densify import DensifyConfig
+
+    rig, frames = moving_plane
+    counts = {}
+    for seeds in ("moving", "new"):
+        cfg = ReconstructConfig(
+            matching=MatchingConfig(num_features=300),
+            match_every=2,
+            densify=DensifyConfig(enabled=True, seeds=seeds),
+        )
+        tracker = Tracker(rig, cfg, edges=EDGES3)
+        r0 = tracker.step(0, frames[0])
+        r1 = tracker.step(1, frames[1])
+        counts[seeds] = r1.num_new
+        assert r1.num_new == len(r1) - np.isin(r1.ids, r0.ids).sum()
+        assert r1.ids[~np.isin(r1.ids, r0.ids)].min(initial=r0.ids.max() + 1) > r0.ids.max()
+    assert counts["new"] == 0
+    assert counts["moving"] > 100  # the plane moves: every tracked point seeds
+
+
 def test_tracker_can_start_flow_at_the_previous_observations(moving_plane):
     rig, frames = moving_plane
     cfg = ReconstructConfig(matching=MatchingConfig(num_features=800), lk_start="observation")
