@@ -12,7 +12,12 @@ normal. For every observed view of an actor point it takes the angle between tha
 the direction to the camera, and prints the views, their precision and the true views' recall
 by angle. Then, for comparison, what dropping views beyond an angle to the *fitted* normal
 (:func:`pointtraj.reconstruct.views.point_normals`, the one the tracker has) would give.
-The figures of ``docs/reconstruction.md``, "Where the wrong views are".
+With ``--convex``, the same for normals taken from the point's offset to the centroid of its
+neighbours (a limb is convex, so the offset points outwards wherever the neighbours reach
+across it): k nearest (12, 24) or within a radius (6, 10 cm), the offset with the
+neighbourhood's long axis removed, and the plane fit oriented by the offset; each with its
+angle to the true normal. The figures of ``docs/reconstruction.md``, "Where the wrong views
+are".
 """
 
 from __future__ import annotations
@@ -24,6 +29,39 @@ import numpy as np
 
 BINS = (0, 30, 45, 60, 70, 80, 90, 180)
 FITTED = (60, 70, 80, 90, 180)
+CONVEX_KEPT = (80, 90, 100)
+
+
+def convex_normals(X: np.ndarray) -> dict[str, np.ndarray]:
+    """Normals (N, 3) of a frame's points X (N, 3) from their offsets to their neighbours'
+    centroid, by neighbourhood (``--convex``)."""
+    from scipy.spatial import cKDTree
+
+    def unit(v: np.ndarray) -> np.ndarray:
+        return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+
+    tree = cKDTree(X)
+    out = {}
+    for k in (12, 24):
+        _, idx = tree.query(X, min(k, len(X)))
+        nb = X[idx]  # (N, k, 3)
+        centre = nb.mean(axis=1)
+        d = nb - centre[:, None]
+        _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", d, d))  # ascending eigenvalues
+        off = X - centre
+        axis = vec[:, :, 2]
+        plane = (
+            vec[:, :, 0] * np.where(np.einsum("ni,ni->n", vec[:, :, 0], off) < 0, -1, 1)[:, None]
+        )
+        out[f"offset, {k} nearest"] = unit(off)
+        out[f"offset across the long axis, {k} nearest"] = unit(
+            off - np.einsum("ni,ni->n", off, axis)[:, None] * axis
+        )
+        out[f"plane fit oriented by the offset, {k} nearest"] = plane
+    for r in (0.06, 0.10):
+        centre = np.array([X[i].mean(axis=0) for i in tree.query_ball_point(X, r)])
+        out[f"offset, within {r * 100:.0f} cm"] = unit(X - centre)
+    return out
 
 
 def dense_samples(
@@ -71,6 +109,7 @@ def main() -> None:
     ap.add_argument("--radius", type=float, default=0.03)
     ap.add_argument("--depth-tol", type=float, default=0.01)
     ap.add_argument("--neighbors", type=int, default=12, help="of the fitted normals")
+    ap.add_argument("--convex", action="store_true", help="also the offset-to-centroid normals")
     args = ap.parse_args()
 
     scene, geo, loc, nrm = dense_samples(args.capture, args.samples)
@@ -81,6 +120,7 @@ def main() -> None:
     obs_n, hit_n, true_n = np.zeros(nb), np.zeros(nb), np.zeros(nb)
     fit_obs, fit_hit = np.zeros(len(FITTED)), np.zeros(len(FITTED))
     total_true = 0
+    convex: dict[str, list] = {}  # name: [angle errors, (kept views, right) per threshold]
     for t in range(0, traj.num_frames, args.every):
         rows = traj.frame_rows(t)
         if not len(rows):
@@ -111,6 +151,17 @@ def main() -> None:
             keep = obs & (fit_angle <= th)
             fit_obs[i] += keep.sum()
             fit_hit[i] += (keep & vis).sum()
+        if args.convex:
+            to_X = _directions(rig, X)
+            for name, n in convex_normals(X).items():
+                acc = convex.setdefault(name, [[], np.zeros((len(CONVEX_KEPT), 2))])
+                cos_true = np.clip(np.einsum("ak,ak->a", n[actor], sn), -1, 1)
+                acc[0].append(np.degrees(np.arccos(cos_true)))
+                cos = np.clip(np.einsum("cnk,nk->nc", to_X, n)[actor], -1, 1)
+                ang = np.degrees(np.arccos(cos))
+                for i, th in enumerate(CONVEX_KEPT):
+                    keep = obs & (ang <= th)
+                    acc[1][i] += keep.sum(), (keep & vis).sum()
     print(
         f"observed views of actor points by the true surface's incidence ({args.samples} "
         f"samples a part, every {args.every} frames):"
@@ -134,6 +185,23 @@ def main() -> None:
             f"| {th} deg | {int(fit_obs[i]):,} | {fit_hit[i] / max(fit_obs[i], 1):.3f} "
             f"| {fit_hit[i] / max(total_true, 1):.3f} |"
         )
+    if convex:
+        print("\nnormals from the offset to the neighbours' centroid (--convex):")
+        print(
+            "| normal | angle to the true normal, median / p75 / p90 | "
+            + " | ".join(f"views kept up to {th} deg: precision / recall" for th in CONVEX_KEPT)
+            + " |"
+        )
+        print("|---|---|" + "---|" * len(CONVEX_KEPT))
+        for name, (errs, kept) in convex.items():
+            e = np.concatenate(errs)
+            cells = " | ".join(
+                f"{h / max(k, 1):.3f} / {h / max(total_true, 1):.3f}" for k, h in kept
+            )
+            print(
+                f"| {name} | {np.median(e):.1f} / {np.percentile(e, 75):.1f} / "
+                f"{np.percentile(e, 90):.1f} | {cells} |"
+            )
 
 
 if __name__ == "__main__":
