@@ -189,13 +189,22 @@ class MultiViewTracks:
         return int(self.observations.shape[1])
 
 
-def detect_features(image: np.ndarray, config: MatchingConfig | None = None) -> Features:
+def detect_features(
+    image: np.ndarray,
+    config: MatchingConfig | None = None,
+    boxes: np.ndarray | None = None,
+) -> Features:
     """ORB features spread over a grid.
 
     Parameters
     ----------
     image : (H, W, 3) uint8 RGB or (H, W) uint8 grey ndarray
     config : MatchingConfig, optional
+    boxes : (B, 4) int ndarray, optional
+        Detect only inside these boxes ``(x0, y0, x1, y1)`` (pixels, end exclusive), each with
+        its share of the image's ORB budget by area; a keypoint in an earlier box is not taken
+        again from a later one. The descriptors are computed on the whole image. Default: the
+        whole image.
 
     Returns
     -------
@@ -212,15 +221,23 @@ def detect_features(image: np.ndarray, config: MatchingConfig | None = None) -> 
         )
     grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
     h, w = grey.shape
-    orb = cv2.ORB_create(
-        nfeatures=int(cfg.num_features * cfg.oversample),
-        scaleFactor=1.2,
-        nlevels=cfg.pyramid_levels,
-        edgeThreshold=cfg.patch_size,
-        patchSize=cfg.patch_size,
-        fastThreshold=cfg.fast_threshold,
-    )
-    kps = orb.detect(grey, None)
+    budget = cfg.num_features * cfg.oversample
+
+    def orb_for(share: float):
+        return cv2.ORB_create(
+            nfeatures=max(1, int(budget * share)),
+            scaleFactor=1.2,
+            nlevels=cfg.pyramid_levels,
+            edgeThreshold=cfg.patch_size,
+            patchSize=cfg.patch_size,
+            fastThreshold=cfg.fast_threshold,
+        )
+
+    orb = orb_for(1.0)
+    if boxes is None:
+        kps = orb.detect(grey, None)
+    else:
+        kps = _detect_in_boxes(grey, boxes, orb_for)
     if kps:
         pts = cv2.KeyPoint_convert(kps)  # (F0, 2)
         response = np.array([k.response for k in kps], dtype=np.float64)
@@ -243,6 +260,96 @@ def detect_features(image: np.ndarray, config: MatchingConfig | None = None) -> 
         return Features(np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8), [], (w, h))
     pixels = cv2.KeyPoint_convert(kps).astype(np.float32).reshape(-1, 2)
     return Features(pixels, desc, list(kps), (w, h))
+
+
+def _detect_in_boxes(grey: np.ndarray, boxes: np.ndarray, orb_for) -> list:
+    """ORB keypoints detected in boxes of a grey image (:func:`detect_features`'s ``boxes``),
+    in full-image coordinates."""
+    import cv2
+
+    h, w = grey.shape
+    b = np.asarray(boxes, np.int64).reshape(-1, 4)
+    b[:, [0, 2]] = np.clip(b[:, [0, 2]], 0, w)
+    b[:, [1, 3]] = np.clip(b[:, [1, 3]], 0, h)
+    kps: list = []
+    for i, (x0, y0, x1, y1) in enumerate(b.tolist()):
+        if x1 <= x0 or y1 <= y0:
+            continue
+        found = orb_for((x1 - x0) * (y1 - y0) / (w * h)).detect(grey[y0:y1, x0:x1], None)
+        if not found:
+            continue
+        pts = cv2.KeyPoint_convert(found).reshape(-1, 2).astype(np.float64) + (x0, y0)
+        x, y = pts[:, 0, None], pts[:, 1, None]
+        e = b[None, :i]  # (1, i, 4): a keypoint in an earlier box was taken there
+        taken = np.any(
+            (x >= e[..., 0]) & (x < e[..., 2]) & (y >= e[..., 1]) & (y < e[..., 3]), axis=1
+        )
+        for k, (u, v), t in zip(found, pts.tolist(), taken.tolist(), strict=True):
+            if not t:
+                k.pt = (u, v)
+                kps.append(k)
+    return kps
+
+
+def moving_boxes(
+    pixels: np.ndarray,
+    moving: np.ndarray,
+    sizes: np.ndarray,
+    tile_px: int = 64,
+    min_points: int = 5,
+    min_share: float = 0.25,
+) -> list[np.ndarray]:
+    """Per camera, the boxes around the image regions where tracked points move.
+
+    The image is cut into square tiles. A tile moves when at least ``min_points`` of the points
+    observed in it moved, and at least ``min_share`` of them (so that tracking jitter, which
+    flags a few scattered points of a still surface, moves no tile). The moving tiles and their
+    8 neighbours (a tile of margin: where the moving surface uncovers new surface) are split
+    into connected regions, each given as its bounding box.
+
+    Parameters
+    ----------
+    pixels : (C, N, 2) float ndarray
+        The tracked points' observations (NaN where a camera does not observe a point).
+    moving : (N,) bool ndarray
+        Which points moved.
+    sizes : (C, 2) int ndarray
+        Image ``(width, height)`` per camera.
+    tile_px : int
+    min_points : int
+    min_share : float
+
+    Returns
+    -------
+    list of C (B_c, 4) int64 ndarrays
+        Boxes ``(x0, y0, x1, y1)`` in pixels (end exclusive, within the image); B_c may be 0.
+    """
+    import cv2
+
+    pix = check_array("pixels", pixels, (None, None, 2))
+    mov = check_array("moving", moving, (pix.shape[1],), dtype=bool)
+    out = []
+    for c in range(pix.shape[0]):
+        w, h = (int(v) for v in sizes[c])
+        gw, gh = -(-w // tile_px), -(-h // tile_px)
+        ok = finite_rows(pix[c])
+        ij = np.floor(pix[c, ok] / tile_px).astype(np.int64)
+        inside = (ij[:, 0] >= 0) & (ij[:, 0] < gw) & (ij[:, 1] >= 0) & (ij[:, 1] < gh)
+        cell = ij[inside, 1] * gw + ij[inside, 0]
+        total = np.bincount(cell, minlength=gw * gh)
+        moved = np.bincount(cell, weights=mov[ok][inside], minlength=gw * gh)
+        tiles = (moved >= min_points) & (moved >= min_share * np.maximum(total, 1))
+        if not tiles.any():
+            out.append(np.zeros((0, 4), np.int64))
+            continue
+        grid = cv2.dilate(tiles.reshape(gh, gw).astype(np.uint8), np.ones((3, 3), np.uint8))
+        n, _, stats, _ = cv2.connectedComponentsWithStats(grid, connectivity=8)
+        s = stats[1:n, :4].astype(np.int64) * tile_px  # (B, 4) x, y, width, height
+        boxes = np.column_stack([s[:, 0], s[:, 1], s[:, 0] + s[:, 2], s[:, 1] + s[:, 3]])
+        boxes[:, [0, 2]] = np.clip(boxes[:, [0, 2]], 0, w)
+        boxes[:, [1, 3]] = np.clip(boxes[:, [1, 3]], 0, h)
+        out.append(boxes)
+    return out
 
 
 def epipolar_distances(
@@ -829,6 +936,7 @@ def match_frame(
     *,
     skip: np.ndarray | None = None,
     skip_px: float = 0.0,
+    boxes: list[np.ndarray] | None = None,
 ) -> MultiViewTracks:
     """Dense multi-view correspondences of one time instant.
 
@@ -847,6 +955,9 @@ def match_frame(
         these pixels of their camera are left out (:func:`without_near`).
     skip_px : float
         See ``skip``.
+    boxes : list of C (B_c, 4) int ndarrays, optional
+        Detect features only inside these boxes of each camera (:func:`detect_features`;
+        :func:`moving_boxes`); a camera with none has no features. Default: whole images.
 
     Returns
     -------
@@ -865,7 +976,12 @@ def match_frame(
                 f"image of camera {rig.names[c]!r} is {np.asarray(img).shape[1::-1]}, "
                 f"the rig says {w}x{h}"
             )
-    feats = [detect_features(img, cfg) for img in images]
+    if boxes is not None and len(boxes) != len(rig):
+        raise ValidationError(f"boxes: expected {len(rig)} lists of boxes, got {len(boxes)}")
+    feats = [
+        detect_features(img, cfg, None if boxes is None else boxes[c])
+        for c, img in enumerate(images)
+    ]
     if skip is not None:
         skip = check_array("skip", skip, (len(rig), None, 2))
         feats = [without_near(f, skip[c], skip_px) for c, f in enumerate(feats)]

@@ -224,6 +224,7 @@ def _carry_on(
     carry_cfg = dataclasses.replace(
         cfg,
         match_every=2**62,  # never at the frames stepped here: no new points
+        match_moving=False,
         densify=dataclasses.replace(cfg.densify, enabled=False),
     )
     tracker = Tracker(rig, carry_cfg, edges, state=state, first_frame=state.frame)

@@ -28,7 +28,7 @@ from ..geometry import axis_angles, finite_rows, pixel_distance
 from ..trajectories import quantize_visibility
 from .config import ReconstructConfig
 from .flow import STILL_VIEWS_PER_PIXEL, expand_views, still_flow, to_grey, track_flow
-from .matching import MultiViewTracks, match_frame, near_pixels, resolve_ambiguous
+from .matching import MultiViewTracks, match_frame, moving_boxes, near_pixels, resolve_ambiguous
 from .survive import carry_one_view, predict_rigid
 from .views import (
     depth_uncertainty,
@@ -522,13 +522,23 @@ class Tracker:
             tri_old, carried = self._carry(st, obs, tri_old, triangulated)
             keep_old = triangulated | carried
 
-        # 2. dense matching: new points where no live trajectory is (every match_every
-        # frames); densification grows from the moving points every frame all the same
+        # 2. dense matching: new points where no live trajectory is, every match_every frames;
+        # in between (match_moving) only around the moving points. Densification grows from
+        # the moving points every frame.
         new_tri, new_obs = None, np.zeros((C, 0, 2))
         live_proj, cover = None, np.zeros((C, 0, 2))
         matching = restart or (t - self._first_frame) % cfg.match_every == 0
+        moved = None  # (N,) tracked points whose image moved
+        if len(st) and (cfg.densify.seeds == "moving" or (cfg.match_moving and not matching)):
+            moved = _image_motion(obs, st.pixels) > cfg.densify.seed_motion_px
+        boxes = None  # per camera, where to match on a frame between matched ones
+        if not matching and cfg.match_moving and moved is not None and keep_old.any():
+            followed = np.where(tri_old.inliers[:, keep_old, None], obs[:, keep_old], np.nan)
+            boxes = moving_boxes(followed, moved[keep_old], rig.sizes)
+            if not any(len(b) for b in boxes):
+                boxes = None
         densifying = cfg.densify.enabled and (matching or cfg.densify.seeds != "new")
-        if matching or densifying:
+        if matching or boxes is not None or densifying:
             cover = np.where(tri_old.inliers[:, keep_old, None], obs[:, keep_old], np.nan)
             observed = cover  # where the live trajectories are followed
             if self._cover_visible and keep_old.any():
@@ -538,10 +548,16 @@ class Tracker:
                     cover,
                     st.misses[keep_old],
                 )
-        if matching:
+        if matching or boxes is not None:
             skip = observed if cfg.match_skip_px > 0 and observed.shape[1] else None
             tracks = match_frame(
-                rig, images, self.edges, cfg.matching, skip=skip, skip_px=cfg.match_skip_px
+                rig,
+                images,
+                self.edges,
+                cfg.matching,
+                skip=skip,
+                skip_px=cfg.match_skip_px,
+                boxes=None if matching else boxes,
             )
             new_tri, new_obs = self._triangulate_tracks(tracks)
             keep_new = self._alive(new_tri) & (
@@ -561,11 +577,11 @@ class Tracker:
         parts = [(tri_old, obs, keep_old)]
         if new_tri is not None:
             parts.append((new_tri, new_obs, keep_new))
-        if densifying:
-            moved = None  # (N,) tracked points that seed it, with seeds = "moving"
-            if cfg.densify.seeds == "moving":
-                moved = _image_motion(obs, st.pixels) > cfg.densify.seed_motion_px
-            parts.append(self._densify(grey, prepared, parts, cover, moved))
+        if densifying:  # seeds = "moving": the tracked points that moved seed it too
+            seeds = moved if cfg.densify.seeds == "moving" else None
+            if seeds is None and cfg.densify.seeds == "moving":
+                seeds = np.zeros(len(st), bool)
+            parts.append(self._densify(grey, prepared, parts, cover, seeds))
         xyz, vis, err, pix = _union(parts)
         n_old = int(keep_old.sum())
         old_ids = st.ids[keep_old]

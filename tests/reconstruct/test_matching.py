@@ -281,3 +281,59 @@ def test_guided_matching_equals_brute_force_within_the_band(cross_check):
     assert np.all(dist == bits[pairs[:, 0], pairs[:, 1]])
     # nearly every keypoint finds its true partner (the distractors are off the line)
     assert np.mean(pairs[:, 0] == pairs[:, 1]) > 0.98
+
+
+def test_moving_boxes_cover_moving_regions_and_ignore_jitter():
+    """Points that move in one region of an image give a box around it (with a tile of
+    margin); a few scattered moving points among still ones (tracking jitter) give none."""
+    from pointtraj.reconstruct.matching import moving_boxes
+
+    rng = np.random.default_rng(0)
+    still = rng.uniform([0, 0], [640, 480], (2000, 2))
+    limb = rng.uniform([300, 200], [400, 260], (200, 2))
+    pixels = np.concatenate([still, limb])[None]  # (1, N, 2)
+    moving = np.zeros(len(pixels[0]), bool)
+    moving[len(still) :] = True
+    moving[rng.choice(len(still), 40, replace=False)] = True  # 2 % jitter
+    sizes = np.array([[640, 480]])
+    (boxes,) = moving_boxes(pixels, moving, sizes, tile_px=64)
+    assert len(boxes) == 1
+    x0, y0, x1, y1 = boxes[0]
+    assert x0 <= 300 - 64 and y0 <= 200 - 64 and x1 >= 400 + 64 and y1 >= 260 + 64  # margin
+    assert (x1 - x0) * (y1 - y0) < 0.3 * 640 * 480  # (here 320 x 256 px)
+    jitter_only = moving.copy()
+    jitter_only[len(still) :] = False
+    assert len(moving_boxes(pixels, jitter_only, sizes)[0]) == 0
+    # NaN observations and points outside the image are ignored; no point: no box
+    pixels[0, :10] = np.nan
+    pixels[0, 10:20] = -100
+    assert len(moving_boxes(pixels, moving, sizes)[0]) == 1
+    assert (
+        len(moving_boxes(np.full((2, 0, 2), np.nan), np.zeros(0, bool), np.array([[64, 64]] * 2)))
+        == 2
+    )
+
+
+def test_detect_features_in_boxes_keeps_the_whole_image_features_there():
+    """Features detected in a box lie in it, with descriptors computed on the whole image; most
+    of the whole image's features in the box's interior are found again."""
+    from pointtraj.reconstruct.matching import detect_features
+
+    rng = np.random.default_rng(3)
+    img = (rng.random((240, 320)) * 255).astype(np.uint8)
+    img = np.ascontiguousarray(np.kron(img, np.ones((2, 2), np.uint8)))  # 480x640, textured
+    cfg = MatchingConfig(num_features=2000)
+    whole = detect_features(img, cfg)
+    box = np.array([[200, 100, 460, 360]])
+    part = detect_features(img, cfg, box)
+    assert len(part) > 0 and part.descriptors.shape == (len(part), 32)
+    p = part.pixels
+    assert np.all((p[:, 0] >= 200) & (p[:, 0] < 460) & (p[:, 1] >= 100) & (p[:, 1] < 360))
+    inner = (whole.pixels[:, 0] > 240) & (whole.pixels[:, 0] < 420)
+    inner &= (whole.pixels[:, 1] > 140) & (whole.pixels[:, 1] < 320)
+    d = np.linalg.norm(whole.pixels[inner][:, None] - p[None], axis=2).min(axis=1)
+    assert np.mean(d < 1.0) > 0.5
+    # overlapping boxes do not give a keypoint twice; no box: no feature
+    twice = detect_features(img, cfg, np.array([[200, 100, 460, 360], [200, 100, 460, 360]]))
+    assert len(np.unique(np.round(twice.pixels, 3), axis=0)) == len(twice)
+    assert len(detect_features(img, cfg, np.zeros((0, 4), np.int64))) == 0

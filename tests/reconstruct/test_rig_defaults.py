@@ -36,6 +36,8 @@ def test_for_rig_chooses_from_baselines_and_resolution(preset, guided, gms, dens
     assert cfg.cover_visible == cover
     # matching skips the features on live trajectories only where they cover every camera
     assert cfg.match_skip_px == (0.5 * cfg.cover_px if cover == "on" else 0.0)
+    # ... and match the whole images every other frame there (the moving regions in between)
+    assert cfg.match_every == (2 if cover == "on" else 1)
     assert "rig-derived settings" in caplog.text and "from the rig" in caplog.text
     # Resolved once: nothing is left to choose, nothing is logged again.
     caplog.clear()
@@ -58,6 +60,10 @@ def test_for_rig_keeps_what_is_set(caplog):
     assert ReconstructConfig(match_skip_px=2.0).for_rig(make_rig("ring8")).match_skip_px == 2.0
     with pytest.raises(ValidationError, match="match_skip_px"):
         ReconstructConfig(match_skip_px=-1.0)
+    assert ReconstructConfig(match_every=1).for_rig(make_rig("paper69")).match_every == 1
+    assert ReconstructConfig(match_every=3).for_rig(make_rig("ring8")).match_every == 3
+    with pytest.raises(ValidationError, match="match_every"):
+        ReconstructConfig(match_every=0)
 
 
 def test_rig_choices_figures():

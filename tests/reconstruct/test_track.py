@@ -177,7 +177,9 @@ def test_tracker_follows_a_moving_plane(moving_plane):
 
 def test_tracker_restarts_on_a_frame_gap(moving_plane):
     rig, frames = moving_plane
-    cfg = ReconstructConfig(matching=MatchingConfig(num_features=800), match_every=2)
+    cfg = ReconstructConfig(
+        matching=MatchingConfig(num_features=800), match_every=2, match_moving=False
+    )
     tracker = Tracker(rig, cfg, edges=EDGES3)
     r0 = tracker.step(0, frames[0])
     r1 = tracker.step(1, frames[1])  # no matching at odd frames: only tracked points
@@ -191,7 +193,8 @@ def test_tracker_restarts_on_a_frame_gap(moving_plane):
 
 
 def test_densification_grows_from_moving_points_between_matched_frames(moving_plane):
-    """With ``match_every = 2`` the odd frames match nothing, but densification still grows
+    """With ``match_every = 2`` (and ``match_moving`` off) the odd frames match nothing, but
+    densification still grows
     from the tracked points that moved (``seeds = "moving"``); from new matches alone
     (``seeds = "new"``) it has no seed there."""
     from pointtraj.reconstruct.densify import DensifyConfig
@@ -202,6 +205,7 @@ def test_densification_grows_from_moving_points_between_matched_frames(moving_pl
         cfg = ReconstructConfig(
             matching=MatchingConfig(num_features=300),
             match_every=2,
+            match_moving=False,
             densify=DensifyConfig(enabled=True, seeds=seeds),
         )
         tracker = Tracker(rig, cfg, edges=EDGES3)
@@ -212,6 +216,21 @@ def test_densification_grows_from_moving_points_between_matched_frames(moving_pl
         assert r1.ids[~np.isin(r1.ids, r0.ids)].min(initial=r0.ids.max() + 1) > r0.ids.max()
     assert counts["new"] == 0
     assert counts["moving"] > 100  # the plane moves: every tracked point seeds
+
+
+def test_frames_between_match_where_points_move(moving_plane):
+    """With ``match_every = 2`` and ``match_moving`` (the default), an odd frame matches
+    around the moving points: the moving plane gets new points there, a still one none."""
+    rig, frames = moving_plane
+    cfg = ReconstructConfig(matching=MatchingConfig(num_features=800), match_every=2)
+    tracker = Tracker(rig, cfg, edges=EDGES3)
+    tracker.step(0, frames[0])
+    r1 = tracker.step(1, frames[1])
+    assert r1.num_new > 0
+    still = Tracker(rig, cfg, edges=EDGES3)
+    s0 = still.step(0, frames[0])
+    s1 = still.step(1, frames[0])  # the same images: nothing moves, nothing is matched
+    assert s1.num_new == 0 and len(s1) > 0.9 * len(s0)
 
 
 def test_tracker_can_start_flow_at_the_previous_observations(moving_plane):
