@@ -313,3 +313,18 @@ def test_a_range_within_one_chunk_is_reconstructed_as_without_chunks(tiny6: Path
     reconstruct_work(tmp_path / "big", tiny6, ReconstructConfig(chunk_frames=6, chunk_overlap=2))
     assert not (tmp_path / "big" / "chunks").exists()
     _same_outputs(tmp_path / "big", _one_chunk(tiny6, tmp_path))
+
+
+def test_tracking_runs_blas_on_one_thread():
+    """``one_blas_thread`` limits every BLAS pool to one thread, as Dask's worker environment
+    does, so that tracking rounds alike in the calling process and in a worker; the limit is
+    lifted after."""
+    from threadpoolctl import threadpool_info
+
+    from pointtraj.reconstruct.stage import one_blas_thread
+
+    before = {i["filepath"]: i["num_threads"] for i in threadpool_info()}
+    with one_blas_thread():
+        blas = [i for i in threadpool_info() if i["user_api"] == "blas"]
+        assert blas and all(i["num_threads"] == 1 for i in blas)
+    assert {i["filepath"]: i["num_threads"] for i in threadpool_info()} == before
