@@ -528,19 +528,21 @@ class Tracker:
         new_tri, new_obs = None, np.zeros((C, 0, 2))
         live_proj, cover = None, np.zeros((C, 0, 2))
         matching = restart or (t - self._first_frame) % cfg.match_every == 0
+        in_between = not matching and cfg.match_moving  # match around the moving points
+        densifying = cfg.densify.enabled and (matching or cfg.densify.seeds != "new")
         moved = None  # (N,) tracked points whose image moved
-        if len(st) and (cfg.densify.seeds == "moving" or (cfg.match_moving and not matching)):
+        if (densifying and cfg.densify.seeds == "moving") or in_between:
             moved = _image_motion(obs, st.pixels) > cfg.densify.seed_motion_px
         boxes = None  # per camera, where to match on a frame between matched ones
-        if not matching and cfg.match_moving and moved is not None and keep_old.any():
-            followed = np.where(tri_old.inliers[:, keep_old, None], obs[:, keep_old], np.nan)
-            boxes = moving_boxes(followed, moved[keep_old], rig.sizes)
-            if not any(len(b) for b in boxes):
-                boxes = None
-        densifying = cfg.densify.enabled and (matching or cfg.densify.seeds != "new")
+        if matching or in_between or densifying:
+            # where the live trajectories are followed
+            observed = np.where(tri_old.inliers[:, keep_old, None], obs[:, keep_old], np.nan)
+            if in_between and keep_old.any():
+                boxes = moving_boxes(observed, moved[keep_old], rig.sizes)
+                if not any(len(b) for b in boxes):
+                    boxes = None
         if matching or boxes is not None or densifying:
-            cover = np.where(tri_old.inliers[:, keep_old, None], obs[:, keep_old], np.nan)
-            observed = cover  # where the live trajectories are followed
+            cover = observed
             if self._cover_visible and keep_old.any():
                 live_proj, cover = self._cover_pixels(
                     tri_old.points[keep_old],
@@ -557,7 +559,7 @@ class Tracker:
                 cfg.matching,
                 skip=skip,
                 skip_px=cfg.match_skip_px,
-                boxes=None if matching else boxes,
+                boxes=boxes,
             )
             new_tri, new_obs = self._triangulate_tracks(tracks)
             keep_new = self._alive(new_tri) & (
@@ -578,10 +580,7 @@ class Tracker:
         if new_tri is not None:
             parts.append((new_tri, new_obs, keep_new))
         if densifying:  # seeds = "moving": the tracked points that moved seed it too
-            seeds = moved if cfg.densify.seeds == "moving" else None
-            if seeds is None and cfg.densify.seeds == "moving":
-                seeds = np.zeros(len(st), bool)
-            parts.append(self._densify(grey, prepared, parts, cover, seeds))
+            parts.append(self._densify(grey, prepared, parts, cover, moved))
         xyz, vis, err, pix = _union(parts)
         n_old = int(keep_old.sum())
         old_ids = st.ids[keep_old]
