@@ -16,8 +16,10 @@ With ``--convex``, the same for normals taken from the point's offset to the cen
 neighbours (a limb is convex, so the offset points outwards wherever the neighbours reach
 across it): k nearest (12, 24) or within a radius (6, 10 cm), the offset with the
 neighbourhood's long axis removed, and the plane fit oriented by the offset; each with its
-angle to the true normal. The figures of ``docs/reconstruction.md``, "Where the wrong views
-are".
+angle to the true normal. With ``--mesh``, views dropped where a surface made of the frame's
+points lies in front of the point (their alpha shape, ray-cast with Open3D, or a sphere around
+every other point); with ``--facing``, views far from the mean direction of the point's other
+observing cameras. The figures of ``docs/reconstruction.md``, "Where the wrong views are".
 """
 
 from __future__ import annotations
@@ -30,6 +32,41 @@ import numpy as np
 BINS = (0, 30, 45, 60, 70, 80, 90, 180)
 FITTED = (60, 70, 80, 90, 180)
 CONVEX_KEPT = (80, 90, 100)
+MESH_TOL = (0.01, 0.02, 0.03)
+FACING = (60, 75, 90, 105, 120, 135, 150)
+
+
+def mesh_hits(
+    X: np.ndarray, centres: np.ndarray, alpha: float | None, sphere: float | None
+) -> np.ndarray:
+    """(N, C) depth in front of each point X (N, 3) at which the ray from camera centre
+    ``centres`` (C, 3) first meets a surface made of the frame's points (``--mesh``): their
+    alpha shape (``alpha`` in metres) or a sphere of radius ``sphere`` around every point;
+    0 where the ray meets nothing before the point."""
+    import open3d as o3d
+
+    d = X[:, None] - centres[None]  # (N, C, 3)
+    dist = np.linalg.norm(d, axis=2)
+    u = d / dist[..., None]
+    if alpha is None:  # the nearest other point within `sphere` of the ray, in front
+        front = np.zeros(dist.shape)
+        for c in range(len(centres)):
+            t = (X - centres[c]) @ u[:, c].T  # (M, N): along the ray to point n
+            perp2 = np.sum((X - centres[c]) ** 2, axis=1)[:, None] - t**2
+            ahead = (perp2 < sphere**2) & (t > 0)
+            np.fill_diagonal(ahead, False)
+            front[:, c] = np.max(np.where(ahead, dist[None, :, c] - t, 0.0), axis=0)
+        return front
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(X))
+    mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_alpha_shape(pcd, alpha)
+    rs = o3d.t.geometry.RaycastingScene()
+    rs.add_triangles(
+        o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
+        o3d.core.Tensor(np.asarray(mesh.triangles, np.uint32)),
+    )
+    rays = np.concatenate([np.broadcast_to(centres[None], d.shape), u], axis=2)
+    t = rs.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+    return np.where(np.isfinite(t), np.maximum(dist - t, 0.0), 0.0)
 
 
 def convex_normals(X: np.ndarray) -> dict[str, np.ndarray]:
@@ -110,6 +147,16 @@ def main() -> None:
     ap.add_argument("--depth-tol", type=float, default=0.01)
     ap.add_argument("--neighbors", type=int, default=12, help="of the fitted normals")
     ap.add_argument("--convex", action="store_true", help="also the offset-to-centroid normals")
+    ap.add_argument(
+        "--facing",
+        action="store_true",
+        help="also views far from the mean direction of the point's other observing cameras",
+    )
+    ap.add_argument(
+        "--mesh",
+        action="store_true",
+        help="also views hidden by a surface of the frame's points (alpha shapes, spheres)",
+    )
     args = ap.parse_args()
 
     scene, geo, loc, nrm = dense_samples(args.capture, args.samples)
@@ -121,6 +168,10 @@ def main() -> None:
     fit_obs, fit_hit = np.zeros(len(FITTED)), np.zeros(len(FITTED))
     total_true = 0
     convex: dict[str, list] = {}  # name: [angle errors, (kept views, right) per threshold]
+    meshes = {f"alpha shape, {a * 100:.0f} cm": (a, None) for a in (0.04, 0.06, 0.08, 0.12)}
+    meshes |= {f"spheres, {r * 100:.1f} cm": (None, r) for r in (0.015, 0.025, 0.035)}
+    mesh_kept = {k: np.zeros((len(MESH_TOL), 2)) for k in meshes}
+    facing_kept = np.zeros((len(FACING), 2))
     for t in range(0, traj.num_frames, args.every):
         rows = traj.frame_rows(t)
         if not len(rows):
@@ -151,6 +202,23 @@ def main() -> None:
             keep = obs & (fit_angle <= th)
             fit_obs[i] += keep.sum()
             fit_hit[i] += (keep & vis).sum()
+        if args.facing:
+            to_X = _directions(rig, X)  # (C, N, 3)
+            o = observed.T.astype(float)  # (C, N)
+            total = np.einsum("cn,cnk->nk", o, to_X)
+            others = total[None] - o[..., None] * to_X  # (C, N, 3): the other cameras' sum
+            others /= np.maximum(np.linalg.norm(others, axis=2, keepdims=True), 1e-12)
+            ang = np.degrees(np.arccos(np.clip(np.einsum("cnk,cnk->nc", others, to_X), -1, 1)))
+            ang = ang[actor]
+            for i, th in enumerate(FACING):
+                keep = obs & (ang <= th)
+                facing_kept[i] += keep.sum(), (keep & vis).sum()
+        if args.mesh:
+            for name, (a, r) in meshes.items():
+                front = mesh_hits(X, rig.C, a, r)[actor]
+                for i, tol in enumerate(MESH_TOL):
+                    keep = obs & (front <= tol)
+                    mesh_kept[name][i] += keep.sum(), (keep & vis).sum()
         if args.convex:
             to_X = _directions(rig, X)
             for name, n in convex_normals(X).items():
@@ -185,6 +253,25 @@ def main() -> None:
             f"| {th} deg | {int(fit_obs[i]):,} | {fit_hit[i] / max(fit_obs[i], 1):.3f} "
             f"| {fit_hit[i] / max(total_true, 1):.3f} |"
         )
+    if args.facing:
+        print("\nviews dropped beyond an angle to the other observing cameras' mean (--facing):")
+        print("| views kept up to | views kept | precision | recall |")
+        print("|---|---:|---:|---:|")
+        for th, (k, h) in zip(FACING, facing_kept, strict=True):
+            print(f"| {th} deg | {int(k):,} | {h / max(k, 1):.3f} | {h / max(total_true, 1):.3f} |")
+    if args.mesh:
+        print("\nviews dropped where a surface of the frame's points lies in front (--mesh):")
+        print(
+            "| surface | "
+            + " | ".join(f"in front by > {t * 100:.0f} cm: precision / recall" for t in MESH_TOL)
+            + " |"
+        )
+        print("|---|" + "---|" * len(MESH_TOL))
+        for name, kept in mesh_kept.items():
+            cells = " | ".join(
+                f"{h / max(k, 1):.3f} / {h / max(total_true, 1):.3f}" for k, h in kept
+            )
+            print(f"| {name} | {cells} |")
     if convex:
         print("\nnormals from the offset to the neighbours' centroid (--convex):")
         print(
