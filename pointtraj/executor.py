@@ -44,6 +44,7 @@ __all__ = [
     "LazyExecutor",
     "SerialExecutor",
     "open_executor",
+    "undo_malloc_trim",
     "usable_cores",
     "worker_cache",
 ]
@@ -464,8 +465,51 @@ def _one_thread_opencv(worker: Any) -> None:
         cv2.setNumThreads(1)
 
 
+#: glibc's ``mallopt`` parameters (``malloc.h``).
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+#: The largest mmap threshold glibc's dynamic threshold grows to on 64-bit systems
+#: (``DEFAULT_MMAP_THRESHOLD_MAX``); glibc keeps the trim threshold at twice it.
+_MMAP_THRESHOLD_MAX = 32 << 20
+
+
+def undo_malloc_trim() -> bool:
+    """Large numpy temporaries from the heap again, in a process started with Dask's
+    ``MALLOC_TRIM_THRESHOLD_``.
+
+    A Dask nanny starts its worker with ``MALLOC_TRIM_THRESHOLD_=65536`` (its
+    ``distributed.nanny.pre-spawn-environ``), so that memory goes back to the OS sooner. Setting
+    it turns off glibc's dynamic mmap threshold as well: every allocation above 128 KiB is then
+    mapped afresh and unmapped when freed, and each of numpy's large temporaries costs a page
+    fault per 4 KiB. The reconstruction of paper69 frames 0-2 took 289 CPU-s (130 of them in the
+    kernel, 35 M page faults) against 163 CPU-s (20 in the kernel, 0.8 M) without it
+    (``docs/scaling.md``). Local clusters start their workers without the variable
+    (:func:`_worker_environ`); workers started by hand (``dask worker``, dask-jobqueue) get it,
+    and this sets the thresholds that glibc's dynamic ones reach (32 MiB to map, 64 MiB to
+    trim) instead.
+
+    Returns
+    -------
+    bool
+        Whether the thresholds were set: False where the variable is not set, or the C library
+        has no ``mallopt`` (not glibc).
+    """
+    if "MALLOC_TRIM_THRESHOLD_" not in os.environ:
+        return False
+    import ctypes
+    import ctypes.util
+
+    try:
+        mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    done = mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX) == 1
+    return mallopt(_M_TRIM_THRESHOLD, 2 * _MMAP_THRESHOLD_MAX) == 1 and done
+
+
 def _worker_setup_plugin() -> Any:
-    """A Dask worker plugin running :func:`_one_thread_opencv` on every worker, also later ones."""
+    """A Dask worker plugin running :func:`_one_thread_opencv` and :func:`undo_malloc_trim` on
+    every worker, also later ones."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
     class PointtrajWorkerSetup(WorkerPlugin):
@@ -474,6 +518,8 @@ def _worker_setup_plugin() -> Any:
 
         def setup(self, worker: Any) -> None:
             _one_thread_opencv(worker)
+            if undo_malloc_trim():
+                logger.info("worker %s: glibc's malloc thresholds restored", worker.address)
 
     return PointtrajWorkerSetup()
 

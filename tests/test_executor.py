@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import platform
 import shutil
 import signal
 import subprocess
@@ -24,7 +25,7 @@ from click.testing import CliRunner
 
 from pointtraj.cli import main
 from pointtraj.errors import FileFormatError, PointtrajError, ValidationError
-from pointtraj.executor import ExecutorConfig, SerialExecutor, open_executor
+from pointtraj.executor import ExecutorConfig, SerialExecutor, open_executor, undo_malloc_trim
 from pointtraj.pipeline import load_pipeline, run_pipeline
 from pointtraj.stages import affinity_work, semantics_work, synthesize
 
@@ -212,6 +213,74 @@ def test_a_command_on_a_local_cluster_names_it_and_its_dashboard(tmp_path, tiny_
     assert res.exit_code == 0, res.output
     assert "executor: local Dask cluster, 2 workers, 2 threads; dashboard http://" in res.output
     _assert_same_npz(tiny_reference / "work" / "affinity.npz", work / "affinity.npz")
+
+
+# -- Dask's MALLOC_TRIM_THRESHOLD_ -----------------------------------------------------------------
+_FAULTS = """
+import resource, sys, numpy as np
+from pointtraj.executor import undo_malloc_trim
+done = undo_malloc_trim() if sys.argv[1] == "undo" else None
+a = np.ones(1 << 20)
+f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(50):
+    b = a * 2.0  # an 8 MiB temporary, freed at the next
+print(done, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+"""
+
+
+def _temporaries_faults(how: str, trim: bool) -> tuple[str, int]:
+    env = {k: v for k, v in os.environ.items() if k != "MALLOC_TRIM_THRESHOLD_"}
+    if trim:
+        env["MALLOC_TRIM_THRESHOLD_"] = "65536"  # what a Dask nanny gives its worker
+    out = subprocess.run(
+        [sys.executable, "-c", _FAULTS, how], env=env, capture_output=True, text=True, check=True
+    ).stdout.split()
+    return out[0], int(out[1])
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt is glibc's")
+def test_a_worker_started_with_dasks_malloc_trim_reuses_large_temporaries():
+    """With MALLOC_TRIM_THRESHOLD_ set, glibc maps each 8 MiB temporary afresh and faults its
+    pages in again (about 500 faults each here). undo_malloc_trim brings back the heap, as in a
+    process without it (where glibc's dynamic threshold takes a few frees to grow)."""
+    _, trimmed = _temporaries_faults("keep", trim=True)
+    done, undone = _temporaries_faults("undo", trim=True)
+    _, plain = _temporaries_faults("keep", trim=False)
+    assert trimmed > 50 * 200
+    assert done == "True" and undone * 10 < trimmed and plain * 5 < trimmed
+    assert _temporaries_faults("undo", trim=False)[0] == "False"  # nothing to undo there
+    assert undo_malloc_trim() is ("MALLOC_TRIM_THRESHOLD_" in os.environ)
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt is glibc's")
+def test_workers_of_a_cluster_started_elsewhere_get_the_heap_back():
+    """A worker under a nanny with Dask's own environment (as ``dask worker`` starts them) has
+    MALLOC_TRIM_THRESHOLD_; the plugin that every executor registers undoes it."""
+    from distributed import Client, LocalCluster
+
+    from pointtraj.executor import _worker_setup_plugin
+
+    def faults() -> int:
+        import resource
+
+        import numpy
+
+        a = numpy.ones(1 << 20)
+        f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+        for _ in range(50):
+            a = a * 1.0
+        return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
+
+    with (
+        LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster,
+        Client(cluster) as client,
+    ):
+        env = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+        assert list(env.values()) == ["65536"]
+        trimmed = list(client.run(faults).values())[0]
+        assert trimmed > 50 * 200
+        client.register_plugin(_worker_setup_plugin())
+        assert list(client.run(faults).values())[0] * 10 < trimmed
 
 
 # -- a scheduler and two workers started as commands ----------------------------------------------
