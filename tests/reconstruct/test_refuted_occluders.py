@@ -120,3 +120,25 @@ def test_views_beyond_the_incidence_limit_are_dropped_where_three_remain():
     assert not drop[3, 50:].any()
     assert not grazing_views(rig, xyz, observed, ViewsConfig(max_incidence_deg=89.0)).any()
     assert not (drop & ~observed).any()
+
+
+def test_normals_from_the_observed_views_alone_are_those_from_every_camera():
+    """point_normals without the (C, N, 3) directions of every camera (as grazing_views calls
+    it) gives the normals it gives with them, bit for bit: the fallback facing direction is
+    summed from the observed views, camera by camera, in the same order."""
+    from pointtraj.reconstruct.views import _directions, point_normals
+
+    rig = plane_rig(angles=(-60.0, -20.0, 0.0, 20.0, 60.0, 85.0))
+    rng = np.random.default_rng(4)
+    xyz = np.column_stack([rng.uniform(-0.3, 0.3, (400, 2)), rng.normal(0, 0.01, 400)])
+    xyz[:3] += 5.0  # far from the others: a plane through a bad neighbourhood
+    observed = rng.random((len(rig), 400)) < 0.5
+    observed[:, 10] = False  # a point with no view: facing nowhere
+    sparse = point_normals(rig, xyz, observed, 12)
+    dense = point_normals(rig, xyz, observed, 12, directions=_directions(rig, xyz))
+    assert np.array_equal(sparse, dense)
+    few = point_normals(rig, xyz[:2], observed[:, :2])  # too few for a plane: the facing
+    assert np.array_equal(
+        few, point_normals(rig, xyz[:2], observed[:, :2], 12, _directions(rig, xyz[:2]))
+    )
+    assert np.allclose(np.linalg.norm(few, axis=1), 1.0)
