@@ -17,6 +17,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -271,10 +272,10 @@ def test_workers_of_a_cluster_started_elsewhere_get_the_heap_back():
             a = a * 1.0
         return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
 
-    with (
-        LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster,
-        Client(cluster) as client,
-    ):
+    with warnings.catch_warnings():  # the scheduler's small HTTP server takes any free port
+        warnings.filterwarnings("ignore", message="Port .* is already in use")
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=":0")
+    with cluster, Client(cluster) as client:
         env = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
         assert list(env.values()) == ["65536"]
         trimmed = list(client.run(faults).values())[0]

@@ -62,7 +62,8 @@ logger = logging.getLogger(__name__)
 #: views it had; or fewer than ``min_views`` of its re-triangulated views kept a visibility
 #: above ``visibility_threshold``; or, on fewer than two views already (``[reconstruct.survive]``),
 #: it lost its last one, its view and its neighbours' motion disagreed, or its frames ran out.
-STOP_REASONS = ("flow", "triangulation", "occlusion", "visibility", "one-view")
+#: Or, left with two views, its search failed in ``[reconstruct.views] unconfirmed_fails`` cameras.
+STOP_REASONS = ("flow", "triangulation", "occlusion", "visibility", "one-view", "unconfirmed")
 
 
 @dataclass
@@ -601,7 +602,12 @@ class Tracker:
                 vis = np.where(drop.T, np.float32(0), vis)
                 pix = np.where(drop[..., None], np.nan, pix)
                 logger.debug("frame %d: %d grazing views dropped", t, int(drop.sum()))
-        enough = np.count_nonzero(vis > cfg.visibility_threshold, axis=1) >= cfg.min_views
+        found = np.count_nonzero(vis > cfg.visibility_threshold, axis=1)  # (N,)
+        enough = found >= cfg.min_views
+        unconfirmed = np.zeros(n_old, bool)
+        if cfg.views.enabled and cfg.views.unconfirmed_fails > 0 and n_old:
+            fails = np.count_nonzero(misses[:n_old] >= cfg.views.unconfirmed_frames, axis=1)
+            unconfirmed = (found[:n_old] == 2) & (fails >= cfg.views.unconfirmed_fails)
         if len(xyz):
             vis = np.where(self._occluded(xyz, vis, proj, misses), np.float32(0), vis)
         views = np.count_nonzero(vis > cfg.visibility_threshold, axis=1)
@@ -610,7 +616,10 @@ class Tracker:
         lone[:n_old] = np.where(seen[:n_old], 0, st.lone[keep_old] + 1)
         if cfg.survive.frames > 0:  # tracked points left with one view go on for a while
             seen[:n_old] |= (views[:n_old] >= 1) & (lone[:n_old] <= cfg.survive.frames)
-        self._count_stops(obs, triangulated, keep_old, enough[:n_old], seen[:n_old], st.lone > 0)
+        seen[:n_old] &= ~unconfirmed
+        self._count_stops(
+            obs, triangulated, keep_old, enough[:n_old], seen[:n_old], st.lone > 0, unconfirmed
+        )
         n_new = int(seen[n_old:].sum())
         ids = np.concatenate([old_ids[seen[:n_old]], st.next_id + np.arange(n_new)])
         xyz, vis, err, pix = xyz[seen], vis[seen], err[seen], pix[:, seen]
@@ -843,16 +852,22 @@ class Tracker:
         enough: np.ndarray,
         seen: np.ndarray,
         was_lone: np.ndarray,
+        unconfirmed: np.ndarray,
     ) -> None:
         """Count why the live trajectories that ended at this frame ended.
 
         ``obs`` (C, N, 2): their flow results; ``triangulated`` (N,): alive after
         re-triangulation; ``kept`` (N,): that or carried on one view (:meth:`_carry`);
         ``enough`` and ``seen`` (kept points): enough views before and after the occlusion
-        test, and still live; ``was_lone`` (N,): on fewer than two views before this frame.
+        test, and still live; ``was_lone`` (N,): on fewer than two views before this frame;
+        ``unconfirmed`` (kept points): ended on two views that the search did not confirm.
         """
         ended = ~kept
         ended[kept] = ~seen
+        refuted = np.zeros(len(kept), bool)
+        refuted[kept] = unconfirmed
+        self.stops["unconfirmed"] += int(refuted.sum())
+        ended &= ~refuted
         lone = ended & was_lone
         self.stops["one-view"] += int(lone.sum())
         ended &= ~was_lone

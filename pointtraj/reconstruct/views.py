@@ -139,6 +139,12 @@ class ViewsConfig:
         from 8.5 % at frame 0 to 21.7 % (``docs/reconstruction.md``, "Points that float
         hide nothing"). ``refute_fail_ratio`` 0 turns it off; the count of 8 keeps it off on
         rigs of up to 8 cameras.
+    unconfirmed_fails, unconfirmed_frames : int
+        A tracked point left with two views ends when its searches failed at least
+        ``unconfirmed_frames`` times in a row in at least ``unconfirmed_fails`` cameras that
+        should see it (in the image, not occluded): what ``confirm_new`` asks of a new point,
+        asked again when a point falls back to two views. ``unconfirmed_fails`` 0 keeps such
+        points (the default).
     """
 
     enabled: bool = True
@@ -161,6 +167,8 @@ class ViewsConfig:
     drop_grazing: bool = True
     refute_min_fails: int = 8
     refute_fail_ratio: float = 4.0
+    unconfirmed_fails: int = 0
+    unconfirmed_frames: int = 1
     normal: str = "neighbors"
 
     def __post_init__(self) -> None:
@@ -182,6 +190,8 @@ class ViewsConfig:
             "search_sigmas": self.search_sigmas >= 0,
             "refute_min_fails": self.refute_min_fails >= 1,
             "refute_fail_ratio": self.refute_fail_ratio >= 0,
+            "unconfirmed_fails": self.unconfirmed_fails >= 0,
+            "unconfirmed_frames": 1 <= self.unconfirmed_frames <= MAX_MISSES,
             "normal": self.normal in ("neighbors", "bisector"),
         }
         bad = [k for k, ok in checks.items() if not ok]

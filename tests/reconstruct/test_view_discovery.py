@@ -155,3 +155,49 @@ def test_views_config_from_toml_and_validation():
         ViewsConfig(retry_every=-1)
     with pytest.raises(ValueError, match="unknown key"):
         from_mapping(ReconstructConfig, {"views": {"min_nc": 0.7}})
+
+
+def test_two_view_points_that_other_cameras_refute_end_as_unconfirmed():
+    """Points 10 cm above a textured plane, tracked in two of five cameras: two views always
+    agree, but the three others do not see them. With ``unconfirmed_fails = 3`` they end
+    (counted as ``unconfirmed``); at the default 0 they go on. The plane's own points,
+    confirmed by their other views, never end so."""
+    from pointtraj.reconstruct.track import TrackState
+
+    rig = plane_rig(angles=(-30.0, -15.0, 0.0, 15.0, 30.0))
+    frames = plane_frames(rig, 2, seed=3)
+    rng = np.random.default_rng(2)
+    fake = np.column_stack([rng.uniform(-0.2, 0.2, (40, 2)), np.full(40, 0.1)])
+    base = ReconstructConfig(matching=MatchingConfig(num_features=600), max_angle_deg=130.0)
+    ended = {}
+    for fails in (0, 3):
+        cfg = dataclasses.replace(base, views=ViewsConfig(unconfirmed_fails=fails))
+        tracker = Tracker(rig, cfg)
+        first = tracker.step(0, frames[0])
+        st = tracker.state
+        assert len(st) > 50
+        pix = rig.project(fake).pixels.astype(np.float32)  # (C, 40, 2)
+        pix[2:] = np.nan  # seen by cameras 0 and 1 only
+        vis = np.zeros((40, len(rig)), np.float32)
+        vis[:, :2] = 1.0
+        tracker.state = TrackState(
+            st.frame,
+            np.concatenate([st.ids, st.next_id + np.arange(40)]),
+            np.concatenate([st.xyz, fake]),
+            np.concatenate([st.visibility, vis]),
+            np.concatenate([st.pixels, pix], axis=1),
+            st.next_id + 40,
+            np.concatenate([st.lone, np.zeros(40, np.int64)]),
+            np.concatenate([st.misses, np.zeros((40, len(rig)), np.uint8)]),
+        )
+        rec = tracker.step(1, frames[1])
+        alive = np.isin(st.next_id + np.arange(40), rec.ids)
+        ended[fails] = (int((~alive).sum()), tracker.stops["unconfirmed"])
+        old = np.isin(first.ids, rec.ids)
+        assert old.mean() > 0.9  # the plane's points go on
+    assert ended[0][1] == 0 and ended[0][0] < 10
+    assert ended[3][0] >= 30 and ended[3][1] >= 30
+    with pytest.raises(ValidationError, match="unconfirmed_fails"):
+        ViewsConfig(unconfirmed_fails=-1)
+    with pytest.raises(ValidationError, match="unconfirmed_frames"):
+        ViewsConfig(unconfirmed_frames=0)
