@@ -69,6 +69,18 @@ def mesh_hits(
     return np.where(np.isfinite(t), np.maximum(dist - t, 0.0), 0.0)
 
 
+def _table_head(title: str, lead: list[str], columns: list[str]) -> None:
+    """Print a title and a Markdown table's header."""
+    print(f"\n{title}")
+    print("| " + " | ".join(lead + columns) + " |")
+    print("|---" * len(lead) + "|" + "---|" * len(columns))
+
+
+def _cells(kept: np.ndarray, total_true: int) -> str:
+    """Table cells "precision / recall" of (kept views, right ones) rows (T, 2)."""
+    return " | ".join(f"{h / max(k, 1):.3f} / {h / max(total_true, 1):.3f}" for k, h in kept)
+
+
 def convex_normals(X: np.ndarray) -> dict[str, np.ndarray]:
     """Normals (N, 3) of a frame's points X (N, 3) from their offsets to their neighbours'
     centroid, by neighbourhood (``--convex``)."""
@@ -260,34 +272,24 @@ def main() -> None:
         for th, (k, h) in zip(FACING, facing_kept, strict=True):
             print(f"| {th} deg | {int(k):,} | {h / max(k, 1):.3f} | {h / max(total_true, 1):.3f} |")
     if args.mesh:
-        print("\nviews dropped where a surface of the frame's points lies in front (--mesh):")
-        print(
-            "| surface | "
-            + " | ".join(f"in front by > {t * 100:.0f} cm: precision / recall" for t in MESH_TOL)
-            + " |"
+        _table_head(
+            "views dropped where a surface of the frame's points lies in front (--mesh):",
+            ["surface"],
+            [f"in front by > {t * 100:.0f} cm: precision / recall" for t in MESH_TOL],
         )
-        print("|---|" + "---|" * len(MESH_TOL))
         for name, kept in mesh_kept.items():
-            cells = " | ".join(
-                f"{h / max(k, 1):.3f} / {h / max(total_true, 1):.3f}" for k, h in kept
-            )
-            print(f"| {name} | {cells} |")
+            print(f"| {name} | {_cells(kept, total_true)} |")
     if convex:
-        print("\nnormals from the offset to the neighbours' centroid (--convex):")
-        print(
-            "| normal | angle to the true normal, median / p75 / p90 | "
-            + " | ".join(f"views kept up to {th} deg: precision / recall" for th in CONVEX_KEPT)
-            + " |"
+        _table_head(
+            "normals from the offset to the neighbours' centroid (--convex):",
+            ["normal", "angle to the true normal, median / p75 / p90"],
+            [f"views kept up to {th} deg: precision / recall" for th in CONVEX_KEPT],
         )
-        print("|---|---|" + "---|" * len(CONVEX_KEPT))
         for name, (errs, kept) in convex.items():
             e = np.concatenate(errs)
-            cells = " | ".join(
-                f"{h / max(k, 1):.3f} / {h / max(total_true, 1):.3f}" for k, h in kept
-            )
             print(
                 f"| {name} | {np.median(e):.1f} / {np.percentile(e, 75):.1f} / "
-                f"{np.percentile(e, 90):.1f} | {cells} |"
+                f"{np.percentile(e, 90):.1f} | {_cells(kept, total_true)} |"
             )
 
 

@@ -67,8 +67,10 @@ def test_floating_points_that_discovery_refutes_hide_nothing(ten_cameras):
     fpix = rig.project(floaters).pixels  # (C, F, 2)
     kept = {}
     for ratio in (4.0, 0.0):
-        # (grazing views kept: the floaters tilt the normals fitted to the plane under them)
-        views = ViewsConfig(refute_fail_ratio=ratio, drop_grazing=False)
+        # (grazing views kept: the floaters tilt the normals fitted to the plane under them;
+        # unconfirmed two-view points kept, which would end the floaters instead: this is
+        # about the points that stay)
+        views = ViewsConfig(refute_fail_ratio=ratio, drop_grazing=False, unconfirmed_fails=0)
         cfg = dataclasses.replace(base, views=views)
         tracker = Tracker(rig, cfg, edges=edges)
         tracker.step(0, frames[0])

@@ -160,8 +160,9 @@ def test_views_config_from_toml_and_validation():
 def test_two_view_points_that_other_cameras_refute_end_as_unconfirmed():
     """Points 10 cm above a textured plane, tracked in two of five cameras: two views always
     agree, but the three others do not see them. With ``unconfirmed_fails = 3`` they end
-    (counted as ``unconfirmed``); at the default 0 they go on. The plane's own points,
-    confirmed by their other views, never end so."""
+    (counted as ``unconfirmed``); with 0 they go on, and at the default 4 too (a rig of five
+    cameras never has four others to fail). The plane's own points, confirmed by their other
+    views, never end so."""
     from pointtraj.reconstruct.track import TrackState
 
     rig = plane_rig(angles=(-30.0, -15.0, 0.0, 15.0, 30.0))
@@ -170,8 +171,9 @@ def test_two_view_points_that_other_cameras_refute_end_as_unconfirmed():
     fake = np.column_stack([rng.uniform(-0.2, 0.2, (40, 2)), np.full(40, 0.1)])
     base = ReconstructConfig(matching=MatchingConfig(num_features=600), max_angle_deg=130.0)
     ended = {}
-    for fails in (0, 3):
-        cfg = dataclasses.replace(base, views=ViewsConfig(unconfirmed_fails=fails))
+    for fails in (0, 3, None):
+        views = ViewsConfig() if fails is None else ViewsConfig(unconfirmed_fails=fails)
+        cfg = dataclasses.replace(base, views=views)
         tracker = Tracker(rig, cfg)
         first = tracker.step(0, frames[0])
         st = tracker.state
@@ -196,6 +198,7 @@ def test_two_view_points_that_other_cameras_refute_end_as_unconfirmed():
         old = np.isin(first.ids, rec.ids)
         assert old.mean() > 0.9  # the plane's points go on
     assert ended[0][1] == 0 and ended[0][0] < 10
+    assert ended[None] == ended[0]
     assert ended[3][0] >= 30 and ended[3][1] >= 30
     with pytest.raises(ValidationError, match="unconfirmed_fails"):
         ViewsConfig(unconfirmed_fails=-1)
