@@ -9,7 +9,8 @@ one frame after birth it also counts how many views they still had.
 
 The reasons are the tracker's: ``one-view`` (carried on one view by ``[reconstruct.survive]``
 and not found again), ``flow`` (fewer than ``min_views`` views tracked, and not carried),
-``triangulation``, ``occlusion`` and ``visibility``.
+``triangulation``, ``occlusion``, ``visibility`` and ``unconfirmed`` (left with two views that
+``[reconstruct.views] unconfirmed_fails`` cameras did not confirm).
 
 Usage::
 
@@ -72,30 +73,17 @@ def main() -> None:
     young_flows = np.zeros(8, np.int64)  # flow deaths at age 1, by views still tracked
     count_stops, step = track.Tracker._count_stops, track.Tracker.step
 
-    def counted(self, obs, triangulated, kept, enough, seen, was_lone):
+    def counted(self, obs, *args):
         # the tracker's own split (Tracker._count_stops), per trajectory
         st = self.state
-        ended = ~kept
-        ended[kept] = ~seen
-        lone = ended & was_lone
-        rest = ended & ~was_lone
-        flows = np.count_nonzero(finite_rows(obs), axis=0)
-        lost_flow = rest & ~kept & (flows < self.config.min_views)
-        after = np.zeros(len(kept), bool)
-        after[kept] = enough
-        reasons = {
-            "one-view": lone,
-            "flow": lost_flow,
-            "triangulation": rest & ~kept & ~lost_flow,
-            "occlusion": rest & kept & after,
-            "visibility": rest & kept & ~after,
-        }
+        reasons = count_stops(self, obs, *args)
         age = np.array([st.frame + 1 - birth[int(i)] for i in st.ids], np.int64)
         for name, mask in reasons.items():
             ages[name].extend(age[mask].tolist())
-        young = lost_flow & (age == 1)
+        young = reasons["flow"] & (age == 1)
+        flows = np.count_nonzero(finite_rows(obs), axis=0)
         young_flows[:] += np.bincount(np.minimum(flows[young], 7), minlength=8)
-        return count_stops(self, obs, triangulated, kept, enough, seen, was_lone)
+        return reasons
 
     def stepped(self, t, images):
         rec = step(self, t, images)

@@ -853,7 +853,7 @@ class Tracker:
         seen: np.ndarray,
         was_lone: np.ndarray,
         unconfirmed: np.ndarray,
-    ) -> None:
+    ) -> dict[str, np.ndarray]:
         """Count why the live trajectories that ended at this frame ended.
 
         ``obs`` (C, N, 2): their flow results; ``triangulated`` (N,): alive after
@@ -861,24 +861,26 @@ class Tracker:
         ``enough`` and ``seen`` (kept points): enough views before and after the occlusion
         test, and still live; ``was_lone`` (N,): on fewer than two views before this frame;
         ``unconfirmed`` (kept points): ended on two views that the search did not confirm.
+        Returns, per reason of :data:`STOP_REASONS`, which of the N ended for it (added to
+        ``self.stops``).
         """
         ended = ~kept
         ended[kept] = ~seen
-        refuted = np.zeros(len(kept), bool)
-        refuted[kept] = unconfirmed
-        self.stops["unconfirmed"] += int(refuted.sum())
-        ended &= ~refuted
-        lone = ended & was_lone
-        self.stops["one-view"] += int(lone.sum())
+        reasons = {"unconfirmed": np.zeros(len(kept), bool)}
+        reasons["unconfirmed"][kept] = unconfirmed
+        ended &= ~reasons["unconfirmed"]
+        reasons["one-view"] = ended & was_lone
         ended &= ~was_lone
         flows = np.count_nonzero(finite_rows(obs), axis=0)  # (N,)
-        lost_flow = ended & ~kept & (flows < self.config.min_views)
-        self.stops["flow"] += int(lost_flow.sum())
-        self.stops["triangulation"] += int((ended & ~kept & ~lost_flow).sum())
+        reasons["flow"] = ended & ~kept & (flows < self.config.min_views)
+        reasons["triangulation"] = ended & ~kept & ~reasons["flow"]
         after = np.zeros(len(kept), bool)
         after[kept] = enough
-        self.stops["occlusion"] += int((ended & kept & after).sum())
-        self.stops["visibility"] += int((ended & kept & ~after).sum())
+        reasons["occlusion"] = ended & kept & after
+        reasons["visibility"] = ended & kept & ~after
+        for name, mask in reasons.items():
+            self.stops[name] += int(mask.sum())
+        return reasons
 
     def _cover_pixels(
         self, xyz: np.ndarray, vis: np.ndarray, pix: np.ndarray, misses: np.ndarray | None = None
