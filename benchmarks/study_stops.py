@@ -7,6 +7,17 @@ reason and its age (frames since its birth): a point that dies one frame after i
 one that dies after 30 frames have different causes. For the trajectories that lose their flow
 one frame after birth it also counts how many views they still had.
 
+It also splits the views that tracked points lose (``view_losses``): of the (point, camera) views
+observed at frame ``t - 1``, the share not observed at ``t`` because
+
+- ``flow``: Lucas-Kanade lost it (no convergence, too little texture for its minimum eigenvalue,
+  the forward-backward check, or out of the image);
+- ``ransac``: the flow went on but the re-triangulation left it out of its inliers;
+- ``visibility``: an inlier whose reprojection error puts ``V(X, c)`` below
+  ``visibility_threshold``;
+- ``point_ended``: the point ended with it (its other views were lost);
+- ``dropped_later``: the point goes on without it (the occlusion test, grazing views).
+
 The reasons are the tracker's: ``one-view`` (carried on one view by ``[reconstruct.survive]``
 and not found again), ``flow`` (fewer than ``min_views`` views tracked, and not carried),
 ``triangulation``, ``occlusion``, ``visibility`` and ``unconfirmed`` (left with two views that
@@ -56,7 +67,7 @@ def _config(path: Path | None, items: list[str]):
 
 def main() -> None:
     from pointtraj.geometry import finite_rows
-    from pointtraj.reconstruct import track
+    from pointtraj.reconstruct import track, triangulate
     from pointtraj.reconstruct.stage import reconstruct_capture
     from pointtraj.session import Capture
 
@@ -85,14 +96,57 @@ def main() -> None:
         young_flows[:] += np.bincount(np.minimum(flows[young], 7), minlength=8)
         return reasons
 
+    losses = dict.fromkeys(
+        ("views", "flow", "ransac", "visibility", "point_ended", "dropped_later"), 0
+    )
+    first_tri: list = []  # the step's first triangulation: the tracked points' flow
+    triangulate_ransac = triangulate.triangulate_ransac
+
+    def recorded(rig, obs, *args, **kwargs):
+        tri = triangulate_ransac(rig, obs, *args, **kwargs)
+        if not first_tri:
+            first_tri.append((obs, tri))
+        return tri
+
+    def lost_views(self, prev, ids, t):
+        """Count why the views ``prev`` (C, N) of points ``ids`` at ``t - 1`` are gone at t."""
+        obs, tri = first_tri[0]
+        thr = self.config.visibility_threshold
+        now = self.state
+        row = {i: j for j, i in enumerate(now.ids.tolist())}
+        rows = np.array([row.get(i, -1) for i in ids.tolist()])
+        alive = rows >= 0
+        seen = np.zeros_like(prev)
+        seen[:, alive] = (now.visibility[rows[alive]] > thr).T
+        lost = prev & ~seen
+        flowed = np.isfinite(obs[..., 0])
+        kinds = {
+            "flow": lost & ~flowed,
+            "ransac": lost & flowed & ~tri.inliers,
+            "visibility": lost & tri.inliers & (tri.visibility.T <= thr),
+        }
+        rest = lost & flowed & tri.inliers & (tri.visibility.T > thr)
+        kinds["point_ended"] = rest & ~alive
+        kinds["dropped_later"] = rest & alive
+        losses["views"] += int(prev.sum())
+        for name, mask in kinds.items():
+            losses[name] += int(mask.sum())
+
     def stepped(self, t, images):
+        st = self.state
+        follows = st.frame == t - 1 and len(st) > 0
+        prev = (st.visibility > self.config.visibility_threshold).T
+        first_tri.clear()
         rec = step(self, t, images)
+        if follows and first_tri:
+            lost_views(self, prev, st.ids, t)
         for i in rec.ids.tolist():
             birth.setdefault(i, t)
         return rec
 
     track.Tracker._count_stops = counted
     track.Tracker.step = stepped
+    triangulate.triangulate_ransac = recorded
     cap = Capture.open(args.capture)
     cfg = _config(args.config, args.overrides)
     if args.work.exists() and any(args.work.iterdir()) and not (args.work / "state").is_dir():
@@ -108,6 +162,11 @@ def main() -> None:
             "by_age_1_to_8_and_more": np.bincount(np.minimum(a, 9), minlength=10)[1:].tolist(),
         }
     out["flow_at_age_1_by_views_tracked"] = young_flows[: max(2, cfg.min_views)].tolist()
+    views = max(losses["views"], 1)
+    out["view_losses"] = {
+        "views_at_previous_frame": losses["views"],
+        **{k: round(v / views, 4) for k, v in losses.items() if k != "views"},
+    }
     print(json.dumps(out, indent=1))
 
 
