@@ -195,6 +195,11 @@ class ReconstructConfig:
         are then dropped (each frame's points come from one chunk). 0: no warm-up, and
         trajectories continue across a boundary only by stitching (``stitch``). Costs
         ``chunk_overlap / chunk_frames`` more tracking.
+    chunk_tail_discovery : bool
+        Whether view discovery (``views``) runs in a chunk's tail, the trajectories carried on
+        over the next chunk. Off, a tail only tracks its points with their flow, the
+        re-triangulation and the occlusion test (no search for more views, no grazing-view
+        drop, no ``unconfirmed`` rule).
     chunk_join_m : float
         Two trajectories of consecutive chunks are the same point when they stay within this
         distance (metres) over every overlap frame where both exist, their projections agree
@@ -265,6 +270,7 @@ class ReconstructConfig:
     chunk_frames: int = 100
     chunk_overlap: int = 5
     chunk_join_m: float = SceneLength(0.005)
+    chunk_tail_discovery: bool = True
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     views: ViewsConfig = field(default_factory=ViewsConfig)

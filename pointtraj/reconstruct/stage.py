@@ -242,6 +242,9 @@ def _carry_on(
         match_every=2**62,  # never at the frames stepped here: no new points
         match_moving=False,
         densify=dataclasses.replace(cfg.densify, enabled=False),
+        views=dataclasses.replace(
+            cfg.views, enabled=cfg.views.enabled and cfg.chunk_tail_discovery
+        ),
     )
     tracker = Tracker(rig, carry_cfg, edges, state=state, first_frame=state.frame)
     rows: list[FrameRecord] = []

@@ -328,3 +328,30 @@ def test_tracking_runs_blas_on_one_thread():
         blas = [i for i in threadpool_info() if i["user_api"] == "blas"]
         assert blas and all(i["num_threads"] == 1 for i in blas)
     assert {i["filepath"]: i["num_threads"] for i in threadpool_info()} == before
+
+
+def _gained_views(tail) -> int:
+    """Rows of a tail where a trajectory is seen by a camera that its row before did not have."""
+    from pointtraj.trajectories import dequantize_visibility
+
+    seen = dequantize_visibility(tail.visibility) > ReconstructConfig().visibility_threshold
+    order = np.lexsort((tail.frame, tail.ids))
+    ids, seen = tail.ids[order], seen[order]
+    same = ids[1:] == ids[:-1]
+    return int(np.count_nonzero(same & (seen[1:] & ~seen[:-1]).any(axis=1)))
+
+
+@pytest.mark.slow
+def test_a_tail_without_discovery_only_tracks_the_views_it_has(tiny6: Path, tmp_path: Path):
+    from pointtraj.reconstruct.chunks import Bridge
+    from pointtraj.stages import reconstruct_work
+
+    tails = {}
+    for search in (True, False):
+        work = tmp_path / f"search_{search}"
+        cfg = dataclasses.replace(CHUNKED, chunk_tail_discovery=search)
+        reconstruct_work(work, tiny6, cfg)
+        tails[search] = Bridge.load(work / "chunks" / "000000-000003" / "tail.npz")
+    assert len(tails[True].ids) and len(tails[False].ids)
+    assert _gained_views(tails[True]) > 0  # discovery finds views in the tail
+    assert _gained_views(tails[False]) == 0  # without it, views are only lost
