@@ -415,7 +415,7 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
                 + [_key(config.semantics, []), _key(config.affinity, [])]
             ),
             [wf.report / "index.md", wf.report / "metrics.json"],
-            lambda p, ex: _evaluate(config, p),
+            lambda p, ex: _evaluate(config, p, ex),
         ),
         _Stage(
             "render",
@@ -431,7 +431,7 @@ def _stage_plan(config: PipelineConfig, force_folder: bool = False) -> list[_Sta
     return [s for s in plan if s.name in config.stages]
 
 
-def _evaluate(config: PipelineConfig, progress: Progress | None) -> None:
+def _evaluate(config: PipelineConfig, progress: Progress | None, executor: Executor) -> None:
     from .evaluate.study import evaluate_work
 
     evaluate_work(
@@ -442,6 +442,7 @@ def _evaluate(config: PipelineConfig, progress: Progress | None) -> None:
         semantics_config=config.semantics,
         title=f"pointtraj report: {config.name or Path(config.work).name}",
         progress=progress,
+        executor=executor,
     )
 
 

@@ -109,7 +109,7 @@ def test_serial_executor_keeps_order_and_passes_the_context():
 
 def test_commands_take_workers_and_scheduler():
     runner = CliRunner()
-    for command in ("run", "demo", "semantics", "affinity", "render", "synth"):
+    for command in ("run", "demo", "semantics", "affinity", "render", "synth", "evaluate"):
         res = runner.invoke(main, [command, "--help"])
         assert res.exit_code == 0, res.output
         assert "--workers" in res.output and "--scheduler" in res.output, command
@@ -146,6 +146,42 @@ def test_stages_on_a_local_cluster_match_serial(tmp_path, tiny_reference, local_
         _assert_same_npz(tiny_reference / "work" / name, work / name)
     _assert_same_files(tiny_reference / "work", work, "renders/**/*.png")
     _assert_same_files(tiny_reference / "work", work, "renders/**/*.mp4")
+
+
+def test_the_report_on_a_local_cluster_matches_serial(tmp_path, tiny_reference, local_cluster):
+    """The evaluation (3D error and predictive validity's recognition frame by frame on two
+    workers) writes the serial figures."""
+    from pointtraj.evaluate.study import evaluate_work
+
+    metrics = []
+    for name, ex in (("serial", None), ("cluster", local_cluster)):
+        work = tmp_path / name
+        shutil.copytree(tiny_reference / "work", work, symlinks=True)
+        shutil.rmtree(work / "report", ignore_errors=True)
+        m = evaluate_work(work, capture=tiny_reference / "cap", executor=ex)
+        metrics.append({k: v for k, v in m.items() if not k.startswith("timing")})
+    assert metrics[0]["validity.support.point_frames"] > 0
+    assert np.isfinite(metrics[0]["gt.error_m.median"])
+    assert metrics[0].keys() == metrics[1].keys()
+    for k, v in metrics[0].items():
+        assert v == metrics[1][k] or (v != v and metrics[1][k] != metrics[1][k]), k
+
+
+def test_the_3d_error_on_a_local_cluster_matches_serial(tiny_reference, local_cluster):
+    """The evaluation's 3D error, frame by frame on two workers, is the serial one."""
+    from pointtraj.evaluate.groundtruth import surface_errors
+    from pointtraj.session import Capture
+    from pointtraj.trajectories import Trajectories
+
+    cap = tiny_reference / "cap"
+    traj = Trajectories.load(tiny_reference / "work" / "trajectories.npz")
+    rig = Capture.open(cap).rig.subset(traj.camera_names)
+    ticks = []
+    serial = surface_errors(cap, rig, traj, progress=ticks.append)
+    assert sum(ticks) == traj.num_frames and len(serial) == len(traj.xyz)
+    assert np.isfinite(serial).mean() > 0.9
+    on_cluster = surface_errors(cap, rig, traj, executor=local_cluster)
+    assert np.array_equal(serial, on_cluster, equal_nan=True)
 
 
 def test_tasks_whose_scattered_context_is_lost_are_sent_again(local_cluster, caplog):

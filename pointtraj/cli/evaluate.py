@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from .common import executor_options
+
 __all__ = ["evaluate"]
 
 
@@ -26,7 +28,15 @@ __all__ = ["evaluate"]
     help="TOML file with an [evaluate] table of EvaluateConfig fields (a pipeline file works; "
     "its [semantics] table then names the recogniser of the validity study).",
 )
-def evaluate(work: Path, capture: Path | None, config_path: Path | None, **options) -> None:
+@executor_options
+def evaluate(
+    work: Path,
+    capture: Path | None,
+    config_path: Path | None,
+    workers: int | None,
+    scheduler: str | None,
+    **options,
+) -> None:
     """Write WORK/report/: index.md, PNG plots and metrics.json, beside the paper's figures.
 
     Runs the paper's three studies (temporal consistency, affinity effectiveness, predictive
@@ -36,14 +46,26 @@ def evaluate(work: Path, capture: Path | None, config_path: Path | None, **optio
     from ..evaluate.health import health_lines
     from ..evaluate.study import EvaluateConfig, evaluate_work, headline
     from ..stages import SemanticsStageConfig
-    from .common import cli_errors, config_from, progress_bars
+    from .common import (
+        cli_errors,
+        config_from,
+        executor_config,
+        open_cli_executor,
+        progress_bars,
+    )
 
     cfg = config_from(EvaluateConfig, config_path, "evaluate", options)
     semantics = None
     if config_path is not None and "semantics" in load_toml(config_path):  # read: it is valid
         semantics = config_from(SemanticsStageConfig, config_path, "semantics")
-    with cli_errors(work), progress_bars() as bars:
-        metrics = evaluate_work(work, cfg, capture, semantics_config=semantics, progress=bars)
+    with (
+        cli_errors(work),
+        open_cli_executor(executor_config(workers, scheduler)) as ex,
+        progress_bars() as bars,
+    ):
+        metrics = evaluate_work(
+            work, cfg, capture, semantics_config=semantics, progress=bars, executor=ex
+        )
     for line in headline(metrics):
         click.echo(line)
     click.echo(f"report: {work / 'report' / 'index.md'}")

@@ -378,6 +378,7 @@ def _ground_truth_section(
     metrics: dict,
     progress,
     off_surface_m: float,
+    executor=None,
 ) -> Section:
     from ..session import Capture
     from .groundtruth import surface_errors
@@ -386,7 +387,7 @@ def _ground_truth_section(
 
     rig = Capture.open(capture).rig.subset(traj.camera_names)
     step = _tick(progress, "evaluate: 3D error", traj.num_frames)
-    err = surface_errors(capture, rig, traj, progress=step)
+    err = surface_errors(capture, rig, traj, progress=step, executor=executor)
     views, _ = observed_views(traj.visibility)  # (P,) in the store's order
     rows = [traj.frame_rows(t) for t in range(traj.num_frames)]  # err is in frame order
     views = views[np.concatenate(rows)] if rows else views[:0]
@@ -774,25 +775,26 @@ def _affinity_section(traj, labels_for_study, source: str, cfg, aff_cfg, folder,
     return Section("Affinity effectiveness", body, ["affinity.png"])
 
 
-def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progress, chosen=None):
-    from ..semantics.recognizers import ImageContext
+def _validity_section(
+    capture, traj, semantics_cfg, cfg, folder, metrics, progress, chosen=None, executor=None
+):
     from ..session import Capture
     from ..stages import make_stage_recognizer
-    from .validity import camera_counts, collect_camera_samples, predictive_validity
+    from .validity import (
+        CaptureRecognizer,
+        camera_counts,
+        collect_camera_samples,
+        predictive_validity,
+    )
 
     cap = Capture.open(capture)
     rig = cap.rig.subset(traj.camera_names)
     if len(rig) < 2:
         return Section("Predictive validity", "Needs at least 2 cameras.")
     recognizer = make_stage_recognizer(semantics_cfg, cap)
-    needs_image = getattr(recognizer, "needs_image", True)
-    names = list(rig.names)
     span = len(traj.occupied_frames)  # a reconstruction of frames A:B lives only there
     stride = max(1, math.ceil(span / cfg.validity_frames))
-
-    def recognize(c: int, t: int) -> np.ndarray:
-        image = cap.read(names[c], t) if needs_image else None
-        return recognizer.recognize(image, ImageContext(names[c], t, os.fspath(cap.path)))
+    recognize = CaptureRecognizer(cap.path, rig.names, recognizer)
 
     visibility = None
     if semantics_cfg.visibility == "geometric":  # the visibility the semantic map pooled with
@@ -812,6 +814,7 @@ def _validity_section(capture, traj, semantics_cfg, cfg, folder, metrics, progre
         seed=cfg.seed,
         progress=step,
         visibility=visibility,
+        executor=executor,
     )
     counts = camera_counts(len(rig))
     support: dict[int, dict[str, int]] = {}
@@ -1008,6 +1011,7 @@ def evaluate_work(
     semantics_config=None,
     title: str | None = None,
     progress=None,
+    executor=None,
 ) -> dict[str, Any]:
     """Evaluate a work folder and write ``WORK/report/`` (``index.md``, PNG plots, ``metrics.json``).
 
@@ -1026,6 +1030,9 @@ def evaluate_work(
     title : str, optional
     progress : callable, optional
         ``progress(label, done, total)``.
+    executor : Executor, optional
+        Where the per-frame work of the 3D error and of predictive validity's recognition runs
+        (default: serially, here). The figures are the same on any executor.
 
     Returns
     -------
@@ -1091,6 +1098,7 @@ def evaluate_work(
                 metrics,
                 progress,
                 cfg.off_surface_m,
+                executor,
             )
         )
     elif not gt:
@@ -1149,7 +1157,7 @@ def evaluate_work(
         try:
             sections.append(
                 _validity_section(
-                    cap, traj, semantics_config, cfg, folder, metrics, progress, chosen
+                    cap, traj, semantics_config, cfg, folder, metrics, progress, chosen, executor
                 )
             )
         except ValidationError as exc:

@@ -13,15 +13,23 @@ study compares poolings directly, as the paper's figure does.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import ValidationError
+from ..executor import Executor, SerialExecutor
 from ..trajectories import Trajectories, dequantize_visibility
 
-__all__ = ["CameraSamples", "collect_camera_samples", "predictive_validity", "camera_counts"]
+__all__ = [
+    "CameraSamples",
+    "CaptureRecognizer",
+    "collect_camera_samples",
+    "predictive_validity",
+    "camera_counts",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -66,6 +74,7 @@ def collect_camera_samples(
     seed: int = 0,
     progress: Callable[[int], None] | None = None,
     visibility: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    executor: Executor | None = None,
 ) -> CameraSamples:
     """Sample every camera's confidences at a random subset of trajectories, frame by frame.
 
@@ -75,7 +84,8 @@ def collect_camera_samples(
     rig : CameraRig
         Cameras in the store's order.
     recognize : callable ``(camera_index, frame) -> (h, w, K) L2D``
-        Runs the recogniser on one image (the map is sampled, then dropped).
+        Runs the recogniser on one image (the map is sampled, then dropped). On a Dask
+        executor it must pickle (:class:`CaptureRecognizer`).
     num_classes : int
         K.
     max_tracks : int
@@ -91,13 +101,14 @@ def collect_camera_samples(
         The visibility that pooling uses, from all of a frame's points and their stored
         visibility (e.g. :func:`pointtraj.semantics.semantic_map.geometric_visibility`);
         default: the stored visibility.
+    executor : Executor, optional
+        Where the frames' recognition and sampling run, one task a frame (default: serially,
+        here).
 
     Returns
     -------
     CameraSamples
     """
-    from ..semantics.sampling import sample_confidences
-
     if len(rig) != trajectories.num_cameras:
         raise ValidationError(
             f"rig has {len(rig)} cameras, the trajectories {trajectories.num_cameras}"
@@ -107,7 +118,7 @@ def collect_camera_samples(
     chosen = np.zeros(M, bool)
     chosen[rng.choice(M, size=min(M, max_tracks), replace=False)] = True
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("track", "frame", "L", "V", "inimg")}
-    C = len(rig)
+    frames = []
     for t in trajectories.occupied_frames[::frame_stride]:
         rows = trajectories.frame_rows(t)
         keep = chosen[trajectories.row_track[rows]]
@@ -117,19 +128,27 @@ def collect_camera_samples(
             V_rows = visibility(trajectories.xyz[rows], V_all)[keep]
         rows = rows[keep]
         if len(rows):
-            proj = rig.project(trajectories.xyz[rows])
-            L = np.zeros((len(rows), C, num_classes), np.float16)
-            for c in range(C):
-                if proj.in_image[c].any():
-                    L2D = recognize(c, t)
-                    L[:, c] = sample_confidences(L2D, proj.pixels[c], rig[c].size)
+            frames.append(int(t))
             parts["track"].append(trajectories.row_track[rows])
             parts["frame"].append(np.full(len(rows), t, np.int64))
-            parts["L"].append(L)
             parts["V"].append(
                 dequantize_visibility(trajectories.visibility[rows]) if V_rows is None else V_rows
             )
-            parts["inimg"].append(proj.in_image.T)
+        elif progress is not None:
+            progress(1)
+    executor = executor or SerialExecutor()
+    items = (
+        (t, trajectories.xyz[r]) for t, r in zip(frames, _rows_of(trajectories, chosen, frames))
+    )
+    for L, in_image in executor.map(
+        _frame_samples,
+        items,
+        label="predictive validity",
+        total=len(frames),
+        context=(rig, recognize, num_classes),
+    ):
+        parts["L"].append(L)
+        parts["inimg"].append(in_image)
         if progress is not None:
             progress(1)
     if not parts["track"]:
@@ -148,6 +167,68 @@ def collect_camera_samples(
     )
 
 
+def _rows_of(trajectories: Trajectories, chosen: np.ndarray, frames: list[int]):
+    """The rows of the chosen trajectories at each of ``frames``, one frame at a time."""
+    for t in frames:
+        rows = trajectories.frame_rows(t)
+        yield rows[chosen[trajectories.row_track[rows]]]
+
+
+def _frame_samples(context: tuple, item: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """One frame of :func:`collect_camera_samples` (an executor task).
+
+    ``context`` is (rig, recognize, K), ``item`` (frame, (n, 3) points). Returns the (n, C, K)
+    float16 confidences at the points' projections (0 outside the image) and the (n, C)
+    in-image mask.
+    """
+    from ..semantics.sampling import sample_confidences
+
+    rig, recognize, K = context
+    t, xyz = item
+    proj = rig.project(np.asarray(xyz))
+    L = np.zeros((len(xyz), len(rig), K), np.float16)
+    for c in range(len(rig)):
+        if proj.in_image[c].any():
+            L[:, c] = sample_confidences(recognize(c, t), proj.pixels[c], rig[c].size)
+    return L, proj.in_image.T
+
+
+class CaptureRecognizer:
+    """``recognize(camera_index, frame)`` of :func:`collect_camera_samples` from a capture's
+    folder and a recogniser: it can be sent to executor workers (a closure cannot), which open
+    the capture themselves.
+
+    Parameters
+    ----------
+    capture : path-like
+        The capture folder.
+    names : sequence of str
+        The cameras, in the store's order.
+    recognizer : Recognizer
+    """
+
+    def __init__(self, capture: str | os.PathLike, names: Sequence[str], recognizer) -> None:
+        self.capture = os.fspath(capture)
+        self.names = list(names)
+        self.recognizer = recognizer
+        self._opened = None
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_opened": None}  # each process opens the capture itself
+
+    def __call__(self, c: int, t: int) -> np.ndarray:
+        from ..semantics.recognizers import ImageContext
+        from ..session import Capture
+
+        if self._opened is None:
+            self._opened = Capture.open(self.capture)
+        name = self.names[c]
+        image = (
+            self._opened.read(name, t) if getattr(self.recognizer, "needs_image", True) else None
+        )
+        return self.recognizer.recognize(image, ImageContext(name, t, self.capture))
+
+
 def camera_counts(num_cameras: int) -> list[int]:
     """The paper's x-axis: 1, 2, 5, 10, 20, ... up to all but the held-out camera.
 
@@ -161,16 +242,31 @@ def camera_counts(num_cameras: int) -> list[int]:
     return sorted({n for n in base if n < top} | {top}) if top >= 1 else []
 
 
-def _track_labels(track: np.ndarray, pooled: np.ndarray) -> np.ndarray:
-    """Argmax of the time-averaged pooled confidences per trajectory (NaN rows skipped)."""
+def _track_labels(inverse: np.ndarray, num_tracks: int, pooled: np.ndarray) -> np.ndarray:
+    """Argmax of the time-averaged pooled confidences per trajectory (NaN rows skipped).
+
+    Parameters
+    ----------
+    inverse : (S,) int ndarray
+        Each sample's trajectory, numbered 0 .. num_tracks - 1.
+    num_tracks : int
+    pooled : (S, K) float ndarray
+
+    Returns
+    -------
+    (num_tracks,) int64 ndarray
+        Class index; -1 where no sample has a positive confidence.
+    """
     ok = np.all(np.isfinite(pooled), axis=1)
-    uniq, inv = np.unique(track[ok], return_inverse=True)
-    K = pooled.shape[1]
-    sums = np.zeros((len(uniq), K))
-    np.add.at(sums, inv, pooled[ok])
-    out = np.full(track.max() + 1 if len(track) else 0, -1, np.int64)
-    out[uniq] = np.where(sums.max(axis=1) > 0, sums.argmax(axis=1), -1)  # -1: no confidence
-    return out
+    inv = inverse[ok]
+    sums = np.stack(
+        [
+            np.bincount(inv, weights=pooled[ok, k], minlength=num_tracks)
+            for k in range(pooled.shape[1])
+        ],
+        axis=1,
+    )  # (T, K): one bincount a class, summed in sample order
+    return np.where(sums.max(axis=1) > 0, sums.argmax(axis=1), -1)
 
 
 def predictive_validity(
@@ -224,7 +320,11 @@ def predictive_validity(
     if held_out is None:
         held_out = np.unique(np.linspace(0, C - 1, min(C, 8)).round().astype(int)).tolist()
     rng = np.random.default_rng(seed)
-    L = samples.L.astype(np.float32)
+    # cameras first, each camera's samples contiguous: a subset of cameras is one block copy
+    L = np.ascontiguousarray(samples.L.transpose(1, 0, 2), dtype=np.float32)  # (C, S, K)
+    V = np.ascontiguousarray(samples.V.T)  # (C, S)
+    in_image = np.ascontiguousarray(samples.in_image.T)  # (C, S)
+    tracks, inverse = np.unique(samples.track, return_inverse=True)
     out: dict[str, dict[int, float]] = {p: {} for p in poolings}
     for n in counts:
         hits = dict.fromkeys(poolings, 0.0)
@@ -240,17 +340,12 @@ def predictive_validity(
             obs = samples.observed[evaluate, h]
             for _ in range(draws if n < len(others) else 1):
                 subset = np.sort(rng.choice(others, size=n, replace=False))
+                L_sub, V_sub, in_sub = L[subset], V[subset].T, in_image[subset]
                 pred = {}
                 for p in poolings:
-                    pooled = pool_views(
-                        L[:, subset],
-                        samples.V[:, subset],
-                        eps_e,
-                        p,
-                        in_image=samples.in_image[:, subset],
-                        camera_axis=1,
-                    )
-                    pred[p] = _track_labels(samples.track, pooled)[samples.track[evaluate]]
+                    pooled = pool_views(L_sub, V_sub, eps_e, p, in_image=in_sub, camera_axis=0)
+                    labels = _track_labels(inverse, len(tracks), pooled)
+                    pred[p] = labels[inverse[evaluate]]
                 # Compare the poolings on the same samples: those every pooling labels (a
                 # pooling that keeps only visible cameras labels fewer trajectories).
                 both = np.all([pred[p] >= 0 for p in poolings], axis=0)

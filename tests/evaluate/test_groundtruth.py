@@ -7,7 +7,12 @@ import pytest
 
 from pointtraj.camera import Camera, CameraRig
 from pointtraj.errors import FileFormatError
-from pointtraj.evaluate.groundtruth import SceneSurface, frame_surface_errors, surface_distance
+from pointtraj.evaluate.groundtruth import (
+    SceneSurface,
+    frame_surface_errors,
+    smallest_eigenpairs,
+    surface_distance,
+)
 from pointtraj.session import Capture
 from pointtraj.synth.groundtruth import load_ground_truth
 
@@ -44,6 +49,42 @@ def test_surface_distance_does_not_take_depth_across_a_silhouette():
     xyz_mid = (np.c_[rig.normalized(np.array([[[10.3, 10.4]]]))[0], [1.0]] * 1.99) @ cam.R + cam.C
     e = surface_distance(cam, flat, xyz_mid, rig.project(xyz_mid).pixels[0])
     assert e == pytest.approx([0.01], abs=1e-4)
+
+
+def test_closed_form_eigenpairs_match_lapack():
+    """The plane fit's closed-form 3x3 eigen-solver against numpy's LAPACK ``eigh``: scatter
+    matrices of 3x3 windows on planes (one eigenvalue near 0), on lines (two), isotropic
+    blobs, and the degenerate zero matrix."""
+    rng = np.random.default_rng(3)
+    S = 4000
+    pts = rng.normal(size=(S, 9, 3)) * rng.uniform(1e-4, 1e-2, (S, 1, 3))  # anisotropic blobs
+    basis = np.linalg.qr(rng.normal(size=(S, 3, 3)))[0]
+    pts = pts @ basis  # random orientation
+    pts[: S // 4, :, 2] = 0.0  # planar before the rotation...
+    pts[: S // 4] = pts[: S // 4] @ basis[: S // 4]  # ...then rotated again
+    pts[S // 4 : S // 2, :, 1:] = 0.0  # on a line
+    pts[S // 2 : S // 2 + 10] = 0.0  # the zero matrix
+    q = pts - pts.mean(axis=1, keepdims=True)
+    A = np.einsum("ski,skj->sij", q, q)
+    values, vector = smallest_eigenpairs(
+        A[:, 0, 0], A[:, 1, 1], A[:, 2, 2], A[:, 0, 1], A[:, 1, 2], A[:, 0, 2]
+    )
+    ref_values, ref_vectors = np.linalg.eigh(A)
+    scale = ref_values[:, 2:] + 1e-300
+    # relative to the largest: a double root (a line) is found to about sqrt(eps), far finer
+    # than the flatness test's 1 %
+    assert np.allclose(values / scale, ref_values / scale, atol=1e-7)
+    assert np.all(np.diff(values, axis=1) >= 0)
+    # where the smallest eigenvalue is simple, the vectors agree up to sign
+    simple = ref_values[:, 1] - ref_values[:, 0] > 1e-6 * ref_values[:, 2]
+    assert simple.sum() > S // 2
+    dot = np.abs(np.einsum("si,si->s", vector[simple], ref_vectors[simple, :, 0]))
+    assert np.all(dot > 1 - 1e-6)
+    # every vector is a unit eigenvector of its smallest eigenvalue (or zero for zero)
+    some = np.linalg.norm(A, axis=(1, 2)) > 0
+    resid = np.einsum("sij,sj->si", A, vector) - values[:, :1] * vector
+    assert np.all(np.linalg.norm(resid[some], axis=1) <= 1e-8 * ref_values[some, 2])
+    assert np.allclose(np.linalg.norm(vector[some], axis=1), 1.0)
 
 
 def test_surface_distance_without_surface_is_nan():
