@@ -160,6 +160,7 @@ def affinity_effectiveness(
     threshold: float = 0.5,
     bin_width: float = 0.1,
     seed: int = 0,
+    executor=None,
 ) -> dict[str, Any]:
     """The paper's affinity study: label disagreement of neighbour pairs by distance.
 
@@ -179,6 +180,8 @@ def affinity_effectiveness(
         ε, τ, mode and RANSAC settings of the local transforms (default: the stage's defaults).
     radius, draws, threshold, bin_width, seed
         As :class:`EvaluateConfig`'s ``affinity_*``.
+    executor : Executor, optional
+        Where the local rigid fits run (default: serially, here; the same on any executor).
 
     Returns
     -------
@@ -199,7 +202,7 @@ def affinity_effectiveness(
 
     cfg = affinity_config or AffinityConfig()
     rng = np.random.default_rng([seed, 0])
-    tf = local_transforms(trajectories, cfg, rng)
+    tf = local_transforms(trajectories, cfg, rng, executor=executor)
     i, j, d = candidate_pairs(trajectories, radius, 0, draws, rng)
     labels = np.asarray(labels, np.int64)
     ok = (labels[i] >= 0) & (labels[j] >= 0)
@@ -717,7 +720,9 @@ def _temporal_verdicts(means: dict[str, dict[str, float]], lags: list[str], metr
     return [x for line in lines for x in (line, "")]
 
 
-def _affinity_section(traj, labels_for_study, source: str, cfg, aff_cfg, folder, metrics):
+def _affinity_section(
+    traj, labels_for_study, source: str, cfg, aff_cfg, folder, metrics, executor=None
+):
     res = affinity_effectiveness(
         traj,
         labels_for_study,
@@ -727,6 +732,7 @@ def _affinity_section(traj, labels_for_study, source: str, cfg, aff_cfg, folder,
         threshold=cfg.affinity_threshold,
         bin_width=cfg.affinity_bin,
         seed=cfg.seed,
+        executor=executor,
     )
     bins = res["bins"]
     names = [f"{100 * a:.0f}-{100 * b:.0f}" for a, b in zip(bins[:-1], bins[1:])]
@@ -1031,8 +1037,9 @@ def evaluate_work(
     progress : callable, optional
         ``progress(label, done, total)``.
     executor : Executor, optional
-        Where the per-frame work of the 3D error and of predictive validity's recognition runs
-        (default: serially, here). The figures are the same on any executor.
+        Where the per-frame work of the 3D error and of predictive validity's recognition, and
+        the affinity study's local rigid fits, run (default: serially, here). The figures are
+        the same on any executor.
 
     Returns
     -------
@@ -1144,6 +1151,7 @@ def evaluate_work(
                 affinity_config or scale_lengths(AffinityConfig(), scale, "[affinity]"),
                 folder,
                 metrics,
+                executor,
             )
         )
     if smap is not None:
