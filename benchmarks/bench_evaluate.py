@@ -19,7 +19,6 @@ Usage (the figures of ``docs/scaling.md``, "The report at paper scale")::
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from pathlib import Path
 
@@ -35,17 +34,13 @@ def _timed(label: str, fn):
 
 def main() -> None:
     from pointtraj.evaluate.groundtruth import surface_errors
-    from pointtraj.evaluate.study import EvaluateConfig
-    from pointtraj.evaluate.validity import (
-        CaptureRecognizer,
-        camera_counts,
-        collect_camera_samples,
-        predictive_validity,
-    )
+    from pointtraj.evaluate.study import EvaluateConfig, validity_samples
+    from pointtraj.evaluate.validity import camera_counts, predictive_validity
     from pointtraj.executor import ExecutorConfig, open_executor
+    from pointtraj.scale import scale_lengths, work_scene_scale
     from pointtraj.semantics.semantic_map import SemanticMap
     from pointtraj.session import Capture
-    from pointtraj.stages import SemanticsStageConfig, make_stage_recognizer
+    from pointtraj.stages import SemanticsStageConfig
     from pointtraj.trajectories import Trajectories
     from pointtraj.workdir import WorkFolder
 
@@ -71,23 +66,18 @@ def main() -> None:
         )
         print(f"  {len(err)} point-frames, median {1e3 * np.nanmedian(err):.4f} mm")
         smap = SemanticMap.load(wf.semantic_map)
-        scfg = SemanticsStageConfig(
-            recognizer=smap.recognizer, options=dict(smap.recognizer_options), eps_e=smap.eps_e
-        )
-        recognizer = make_stage_recognizer(scfg, cap)
-        stride = max(1, math.ceil(len(traj.occupied_frames) / cfg.validity_frames))
+        scfg = scale_lengths(
+            SemanticsStageConfig(
+                recognizer=smap.recognizer,
+                options=dict(smap.recognizer_options),
+                eps_e=smap.eps_e,
+            ),
+            work_scene_scale(wf),
+            "[semantics]",
+        )  # as evaluate_work makes it
         samples = _timed(
             "predictive validity: samples",
-            lambda: collect_camera_samples(
-                traj,
-                rig,
-                CaptureRecognizer(cap.path, rig.names, recognizer),
-                len(recognizer.class_names),
-                max_tracks=cfg.validity_tracks,
-                frame_stride=stride,
-                seed=cfg.seed,
-                executor=ex,
-            ),
+            lambda: validity_samples(cap, traj, rig, scfg, cfg, executor=ex),
         )
     print(f"  {samples.L.shape[0]} point-frames x {samples.L.shape[1]} cameras")
     res = _timed(

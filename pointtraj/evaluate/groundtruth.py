@@ -455,10 +455,11 @@ def surface_errors(
         map has surface near the point's projection).
     """
     frames = range(trajectories.num_frames) if frames is None else frames
-    occupied = [t for t in frames if len(trajectories.frame_rows(t))]
+    rows = [(t, trajectories.frame_rows(t)) for t in frames]
+    occupied = [(t, r) for t, r in rows if len(r)]
     if progress is not None and len(occupied) < len(frames):
         progress(len(frames) - len(occupied))  # frames without points: nothing to measure
-    items = ((t, trajectories.xyz[trajectories.frame_rows(t)]) for t in occupied)
+    items = ((t, trajectories.xyz[r]) for t, r in occupied)
     executor = executor or SerialExecutor()
     out = []
     for err in executor.map(
@@ -479,7 +480,7 @@ def _frame_errors_task(context: tuple, item: tuple) -> np.ndarray:
     ``item`` (frame, (N, 3) points)."""
     capture, rig = context
     t, xyz = item
-    return frame_surface_errors(capture, rig, int(t), np.asarray(xyz, np.float64))
+    return frame_surface_errors(capture, rig, int(t), xyz)
 
 
 class SceneSurface:

@@ -781,26 +781,44 @@ def _affinity_section(
     return Section("Affinity effectiveness", body, ["affinity.png"])
 
 
-def _validity_section(
-    capture, traj, semantics_cfg, cfg, folder, metrics, progress, chosen=None, executor=None
-):
-    from ..session import Capture
-    from ..stages import make_stage_recognizer
-    from .validity import (
-        CaptureRecognizer,
-        camera_counts,
-        collect_camera_samples,
-        predictive_validity,
-    )
+def _validity_stride(traj, cfg: EvaluateConfig) -> int:
+    """Predictive validity samples every this many frames: ``cfg.validity_frames`` over the
+    frames where the store has points (a reconstruction of frames A:B lives only there)."""
+    return max(1, math.ceil(len(traj.occupied_frames) / cfg.validity_frames))
 
-    cap = Capture.open(capture)
-    rig = cap.rig.subset(traj.camera_names)
-    if len(rig) < 2:
-        return Section("Predictive validity", "Needs at least 2 cameras.")
-    recognizer = make_stage_recognizer(semantics_cfg, cap)
-    span = len(traj.occupied_frames)  # a reconstruction of frames A:B lives only there
-    stride = max(1, math.ceil(span / cfg.validity_frames))
-    recognize = CaptureRecognizer(cap.path, rig.names, recognizer)
+
+def validity_samples(
+    capture, traj, rig, semantics_cfg, cfg: EvaluateConfig, progress=None, executor=None
+):
+    """The per-camera samples of predictive validity, as the report draws them.
+
+    Parameters
+    ----------
+    capture : Capture
+        The open capture.
+    traj : Trajectories
+    rig : CameraRig
+        The store's cameras, in its order.
+    semantics_cfg : SemanticsStageConfig
+        The recogniser, ε_e and visibility the semantic map was made with.
+    cfg : EvaluateConfig
+        ``validity_tracks``, ``validity_frames`` and ``seed``.
+    progress : callable, optional
+        ``progress(label, done, total)``.
+    executor : Executor, optional
+        Where each sampled frame's images are recognised (default: serially, here).
+
+    Returns
+    -------
+    CameraSamples
+    """
+    from ..stages import stage_recognizer_spec
+    from .validity import CaptureRecognizer, collect_camera_samples
+
+    spec = stage_recognizer_spec(semantics_cfg, capture)
+    local = executor is None or executor.local
+    recognizer = spec.make() if local else spec  # a worker makes its own, once
+    stride = _validity_stride(traj, cfg)
 
     visibility = None
     if semantics_cfg.visibility == "geometric":  # the visibility the semantic map pooled with
@@ -809,11 +827,12 @@ def _validity_section(
         def visibility(xyz: np.ndarray, V: np.ndarray) -> np.ndarray:
             return geometric_visibility(rig, xyz, V, semantics_cfg)
 
+    span = len(traj.occupied_frames)
     step = _tick(progress, "evaluate: predictive validity", math.ceil(span / stride))
-    samples = collect_camera_samples(
+    return collect_camera_samples(
         traj,
         rig,
-        recognize,
+        CaptureRecognizer(capture, rig.names, recognizer),
         len(recognizer.class_names),
         max_tracks=cfg.validity_tracks,
         frame_stride=stride,
@@ -822,6 +841,20 @@ def _validity_section(
         visibility=visibility,
         executor=executor,
     )
+
+
+def _validity_section(
+    capture, traj, semantics_cfg, cfg, folder, metrics, progress, chosen=None, executor=None
+):
+    from ..session import Capture
+    from .validity import camera_counts, predictive_validity
+
+    cap = Capture.open(capture)
+    rig = cap.rig.subset(traj.camera_names)
+    if len(rig) < 2:
+        return Section("Predictive validity", "Needs at least 2 cameras.")
+    samples = validity_samples(cap, traj, rig, semantics_cfg, cfg, progress, executor)
+    stride = _validity_stride(traj, cfg)
     counts = camera_counts(len(rig))
     support: dict[int, dict[str, int]] = {}
     res = predictive_validity(

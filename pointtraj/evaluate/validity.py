@@ -118,7 +118,7 @@ def collect_camera_samples(
     chosen = np.zeros(M, bool)
     chosen[rng.choice(M, size=min(M, max_tracks), replace=False)] = True
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("track", "frame", "L", "V", "inimg")}
-    frames = []
+    items = []  # (frame, the chosen trajectories' points there): one task each
     for t in trajectories.occupied_frames[::frame_stride]:
         rows = trajectories.frame_rows(t)
         keep = chosen[trajectories.row_track[rows]]
@@ -128,7 +128,7 @@ def collect_camera_samples(
             V_rows = visibility(trajectories.xyz[rows], V_all)[keep]
         rows = rows[keep]
         if len(rows):
-            frames.append(int(t))
+            items.append((int(t), trajectories.xyz[rows]))
             parts["track"].append(trajectories.row_track[rows])
             parts["frame"].append(np.full(len(rows), t, np.int64))
             parts["V"].append(
@@ -137,14 +137,10 @@ def collect_camera_samples(
         elif progress is not None:
             progress(1)
     executor = executor or SerialExecutor()
-    items = (
-        (t, trajectories.xyz[r]) for t, r in zip(frames, _rows_of(trajectories, chosen, frames))
-    )
     for L, in_image in executor.map(
         _frame_samples,
         items,
         label="predictive validity",
-        total=len(frames),
         context=(rig, recognize, num_classes),
     ):
         parts["L"].append(L)
@@ -167,13 +163,6 @@ def collect_camera_samples(
     )
 
 
-def _rows_of(trajectories: Trajectories, chosen: np.ndarray, frames: list[int]):
-    """The rows of the chosen trajectories at each of ``frames``, one frame at a time."""
-    for t in frames:
-        rows = trajectories.frame_rows(t)
-        yield rows[chosen[trajectories.row_track[rows]]]
-
-
 def _frame_samples(context: tuple, item: tuple) -> tuple[np.ndarray, np.ndarray]:
     """One frame of :func:`collect_camera_samples` (an executor task).
 
@@ -194,39 +183,34 @@ def _frame_samples(context: tuple, item: tuple) -> tuple[np.ndarray, np.ndarray]
 
 
 class CaptureRecognizer:
-    """``recognize(camera_index, frame)`` of :func:`collect_camera_samples` from a capture's
-    folder and a recogniser: it can be sent to executor workers (a closure cannot), which open
-    the capture themselves.
+    """``recognize(camera_index, frame)`` of :func:`collect_camera_samples` from a capture and
+    a recogniser: unlike a closure, it can be sent to executor workers.
 
     Parameters
     ----------
-    capture : path-like
-        The capture folder.
+    capture : Capture
+        The open capture (pickled to each worker, it reads its own files there).
     names : sequence of str
         The cameras, in the store's order.
-    recognizer : Recognizer
+    recognizer : Recognizer or RecognizerSpec
+        On a Dask cluster give the spec, as the semantics stage does: each worker then makes
+        the recogniser once (:meth:`~pointtraj.semantics.recognizers.RecognizerSpec.cached`).
     """
 
-    def __init__(self, capture: str | os.PathLike, names: Sequence[str], recognizer) -> None:
-        self.capture = os.fspath(capture)
+    def __init__(self, capture, names: Sequence[str], recognizer) -> None:
+        self.capture = capture
         self.names = list(names)
         self.recognizer = recognizer
-        self._opened = None
-
-    def __getstate__(self) -> dict:
-        return {**self.__dict__, "_opened": None}  # each process opens the capture itself
 
     def __call__(self, c: int, t: int) -> np.ndarray:
-        from ..semantics.recognizers import ImageContext
-        from ..session import Capture
+        from ..semantics.recognizers import ImageContext, RecognizerSpec
 
-        if self._opened is None:
-            self._opened = Capture.open(self.capture)
+        recognizer = self.recognizer
+        if isinstance(recognizer, RecognizerSpec):
+            recognizer = recognizer.cached()
         name = self.names[c]
-        image = (
-            self._opened.read(name, t) if getattr(self.recognizer, "needs_image", True) else None
-        )
-        return self.recognizer.recognize(image, ImageContext(name, t, self.capture))
+        image = self.capture.read(name, t) if getattr(recognizer, "needs_image", True) else None
+        return recognizer.recognize(image, ImageContext(name, t, os.fspath(self.capture.path)))
 
 
 def camera_counts(num_cameras: int) -> list[int]:
