@@ -605,11 +605,20 @@ def _ncc_warped(
     return np.take_along_axis(scores, best[..., None], axis=2)[..., 0], best
 
 
-def _rays(cam, pixels: np.ndarray) -> np.ndarray:
-    """(..., 3) rays ``K^-1 (u, v, 1)`` of ideal pixels (..., 2), in the camera frame."""
-    K = cam.K
-    y = (pixels[..., 1] - K[1, 2]) / K[1, 1]
-    x = (pixels[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+def _rays(K: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(n, ..., 3) rays ``K^-1 (u, v, 1)`` of ideal pixels (n, ..., 2), in the camera frame.
+
+    ``K`` is one camera's (3, 3) intrinsics, or (n, 3, 3): each row's own camera's (the same
+    arithmetic, element by element).
+    """
+    K = np.asarray(K)
+    shape = K.shape[:-2] + (1,) * (pixels.ndim - 1 - (K.ndim - 2))
+
+    def k(i: int, j: int) -> np.ndarray:
+        return K[..., i, j].reshape(shape)
+
+    y = (pixels[..., 1] - k(1, 2)) / k(1, 1)
+    x = (pixels[..., 0] - k(0, 2) - k(0, 1) * y) / k(0, 0)
     return np.stack([x, y, np.ones_like(x)], axis=-1)
 
 
@@ -694,7 +703,7 @@ def _densify_camera(
     n, P = ref.shape
     if n == 0:
         return empty
-    rays = _rays(cam, patch).astype(np.float32)  # (n, P, 3), as _ncc uses them
+    rays = _rays(cam.K, patch).astype(np.float32)  # (n, P, 3), as _ncc uses them
     z = z_seed[j][:, None] + dz[None, :]  # (n, D)
     D = len(dz)
 
@@ -735,7 +744,7 @@ def _densify_camera(
         delta = np.clip(0.5 * (y0 - y2) / (y0 - 2 * y1 + y2), -0.5, 0.5)
     delta = np.where(np.isfinite(delta), delta, 0.0)
     z_best = z[np.arange(n), b] + delta * (dz[1] - dz[0])
-    X = cam.C + (z_best[:, None] * _rays(cam, cand)) @ cam.R  # (n, 3) world
+    X = cam.C + (z_best[:, None] * _rays(cam.K, cand)) @ cam.R  # (n, 3) world
     # in the image of r, its partners and the cameras the veto may ask; only those cameras are
     # projected into (each camera's projection is its own: the same values as the whole rig's)
     if r not in subsets:
@@ -759,7 +768,7 @@ def _densify_camera(
         idx = np.flatnonzero(accept)
         ipatch = cand[idx, None, :] + inner[None]
         iref, _ = _zscore(_sample(images[r], ipatch[..., 0], ipatch[..., 1]))
-        irays = _rays(cam, ipatch)
+        irays = _rays(cam.K, ipatch)
         worst = np.full(idx.size, np.inf)
         for s in np.flatnonzero(partners_ok):
             sub = np.flatnonzero(views[s, idx])

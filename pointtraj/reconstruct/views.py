@@ -573,42 +573,34 @@ def discover_views(
         ref[group] = np.where(ok[:, None], z, 0.0)
         textured[group] = ok
     # The sweeps camera by searched camera c: the patches of all of c's reference cameras
-    # are scored in one NCC call (each row with its reference camera's warp), then projected
-    # into c at once (camera c alone: projecting into every camera is C times the work).
+    # are set up, scored in one NCC call (each row with its reference camera's warp) and
+    # accepted together, then projected into c at once (camera c alone: projecting into every
+    # camera is C times the work). Rows are grouped by reference camera within c.
     pair = cs * C + rs
     order = np.argsort(pair, kind="stable")
-    groups = np.split(order, np.flatnonzero(np.diff(pair[order])) + 1)
-    group_cam = np.array([cs[g[0]] for g in groups])
-    for chunk in np.split(np.arange(len(groups)), np.flatnonzero(np.diff(group_cam)) + 1):
-        c = int(group_cam[chunk[0]])
-        setups = []
-        for g in chunk:
-            group = groups[g]
-            r, n = int(rs[group[0]]), ns[group]
-            plane = _plane_normals(cfg, normals[n], to_cams[r, n], to_cams[c, n])
-            setups.append(
-                _sweep_setup(
-                    rig, r, c, X[n], plane, ideal[r, n], half[n], offsets, steps,
-                    textured[group], across,
-                )
-            )  # fmt: skip
-        swept = [(g, st) for g, st in zip(chunk, setups, strict=True) if st.u.size]
-        scores, which = _sweep_scores(images[c], rig, c, swept, ref, groups, len(across) > 1)
-        hits_X, hits_n, hits_shift = [], [], []
-        for (g, st), sc, wh in zip(swept, scores, which, strict=True):
-            group = groups[g]
-            n = ns[group]
-            searched[c, n] = st.usable
-            ok, Xb, shift = _sweep_finish(rig[st.r], st, sc, wh, half[n], steps, cfg)
-            if ok.any():
-                hits_X.append(Xb[ok])
-                hits_n.append(n[ok])
-                hits_shift.append(shift[ok])
-        if hits_X:
-            p = CameraRig([rig[c]]).project(np.concatenate(hits_X))
+    cut = np.flatnonzero(np.diff(pair[order])) + 1
+    starts = np.concatenate([[0], cut, [len(order)]])  # (G + 1,) group bounds in ``order``
+    group_cam = cs[order[starts[:-1]]]
+    chunks = np.concatenate([[0], np.flatnonzero(np.diff(group_cam)) + 1, [len(group_cam)]])
+    for g0, g1 in zip(chunks[:-1], chunks[1:], strict=True):
+        rows = order[starts[g0] : starts[g1]]
+        c = int(cs[rows[0]])
+        n, r = ns[rows], rs[rows]
+        st = _sweep_setup(
+            rig, c, r, starts[g0 : g1 + 1] - starts[g0], X[n],
+            _plane_normals(cfg, normals[n], to_cams[r, n], to_cams[c, n]),
+            ideal[r, n], half[n], offsets, steps, textured[rows], across,
+        )  # fmt: skip
+        searched[c, n] = st.usable
+        if not st.u.size:
+            continue
+        scores, which = _sweep_scores(images[c], rig, c, st, ref[rows[st.u]])
+        ok, Xb, shift = _sweep_finish(rig, st, scores, which, half[n], steps, cfg)
+        if ok.any():
+            p = CameraRig([rig[c]]).project(Xb[ok])
             inside = p.in_image[0]
-            sel = np.concatenate(hits_n)[inside]
-            out[c, sel] = p.pixels[0][inside] + np.concatenate(hits_shift)[inside]
+            sel = n[ok][inside]
+            out[c, sel] = p.pixels[0][inside] + shift[ok][inside]
             found += sel.size
     logger.debug("view discovery: %d of %d candidate views found", found, len(cs))
     return out, searched
@@ -638,19 +630,22 @@ def _plane_normals(
 
 @dataclass
 class _SweepSetup:
-    """One (searched camera c, reference camera r) group of candidate views, ready to score.
+    """The candidate views of one searched camera c, ready to score: n rows, grouped by
+    reference camera.
 
     Attributes
     ----------
-    r : int
-        The reference camera.
+    r : (n,) int ndarray
+        Each row's reference camera.
+    bounds : (G + 1,) int ndarray
+        The groups' row bounds: rows ``bounds[i]:bounds[i + 1]`` share one reference camera.
     usable : (n,) bool ndarray
         Whose patch can be compared (textured, plane not grazing in r).
     u : (m,) int ndarray
         ``flatnonzero(usable)``.
-    rays : (m, P, 3) float ndarray
-        The usable patches' sample rays in r's frame, scaled to the plane (depth 1 at the
-        centre).
+    rays : (n, P, 3) float ndarray
+        The patches' sample rays in r's frame, scaled to the plane (depth 1 at the centre;
+        meaningful where usable).
     z : (n, D) float ndarray
         Depth hypotheses in r.
     centre_ray : (n, 3) float ndarray
@@ -659,7 +654,8 @@ class _SweepSetup:
         Offsets across the epipolar line in c (None without ``across``).
     """
 
-    r: int
+    r: np.ndarray
+    bounds: np.ndarray
     usable: np.ndarray
     u: np.ndarray
     rays: np.ndarray
@@ -667,11 +663,17 @@ class _SweepSetup:
     centre_ray: np.ndarray
     shifts: np.ndarray | None
 
+    def groups(self) -> list[tuple[int, int, int]]:
+        """(reference camera, first row, end row) of each group."""
+        b = self.bounds
+        return [(int(self.r[i]), int(i), int(j)) for i, j in zip(b[:-1], b[1:], strict=True)]
+
 
 def _sweep_setup(
     rig: CameraRig,
-    r: int,
     c: int,
+    r: np.ndarray,
+    bounds: np.ndarray,
     X: np.ndarray,
     normals: np.ndarray,
     ideal_r: np.ndarray,
@@ -681,83 +683,73 @@ def _sweep_setup(
     textured: np.ndarray,
     across: np.ndarray,
 ) -> _SweepSetup:
-    """The plane sweep of points X (n, 3) seen in reference camera r, for camera c: the
-    patches' rays on each point's plane (``normals`` (n, 3)), through its observation
-    ``ideal_r`` (n, 2), and the depths swept (``half`` (n,) times ``steps`` (D,)).
-    ``textured`` (n,) are the usable reference patches, ``across`` (S,) the offsets (pixels)
-    across the epipolar line tried at every depth."""
-    cam = rig[r]
-    n = len(X)
+    """The plane sweep of points X (n, 3) seen in reference cameras r (n,), grouped by
+    reference camera (``bounds``, see :class:`_SweepSetup`), for camera c: the patches' rays
+    on each point's plane (``normals`` (n, 3)), through its observation ``ideal_r`` (n, 2),
+    and the depths swept (``half`` (n,) times ``steps`` (D,)). ``textured`` (n,) are the
+    usable reference patches, ``across`` (S,) the offsets (pixels) across the epipolar line
+    tried at every depth.
+
+    Every value is computed row by row as for one reference camera at a time: the products
+    with a camera's rotation stay one matrix product per group, the rest is element-wise.
+    """
+    K = rig.K[r]  # (n, 3, 3)
     patch = ideal_r[:, None, :] + offsets[None]  # (n, P, 2)
-    usable = textured.copy()
-    none = _SweepSetup(
-        r, np.zeros(n, bool), np.zeros(0, np.int64), np.zeros((0, len(offsets), 3)),
-        np.zeros((n, len(steps))), np.zeros((n, 3)), None,
-    )  # fmt: skip
-    if not usable.any():
-        return none
-    rays = _rays(cam, patch)  # (n, P, 3), camera frame, z = 1
-    centre_ray = _rays(cam, ideal_r)  # (n, 3)
-    nr = normals @ cam.R.T  # (n, 3) normals in r's frame
+    rays = _rays(K, patch)  # (n, P, 3), camera frame, z = 1
+    centre_ray = _rays(K, ideal_r)  # (n, 3)
+    nr = np.empty_like(normals)  # normals in r's frame
+    z0 = np.empty(len(X))  # the points' depths in r
+    st = _SweepSetup(
+        r, bounds, textured.copy(), np.zeros(0, np.int64), rays, None, centre_ray, None
+    )
+    for ref, a, b in st.groups():
+        cam = rig[ref]
+        nr[a:b] = normals[a:b] @ cam.R.T
+        z0[a:b] = ((X[a:b] - cam.C) @ cam.R.T)[:, 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         w = np.einsum("nk,nk->n", nr, centre_ray)[:, None] / np.einsum("npk,nk->np", rays, nr)
     w = np.where(np.isfinite(w) & (w > 0.2) & (w < 5.0), w, np.nan)  # (n, P): plane depth ratio
-    usable &= np.all(np.isfinite(w), axis=1)
-    if not usable.any():
-        return none
-    z0 = ((X - cam.C) @ cam.R.T)[:, 2]  # the point's depth in r
+    st.usable &= np.all(np.isfinite(w), axis=1)
+    st.rays *= w[..., None]
     # depth of the ray through the observation where it passes the point (the observation
     # may sit a little off the point's projection)
-    z = z0[:, None] + half[:, None] * steps[None, :]  # (n, D)
-    u = np.flatnonzero(usable)
-    shifts = None
+    st.z = z0[:, None] + half[:, None] * steps[None, :]  # (n, D)
+    st.u = np.flatnonzero(st.usable)
     if len(across) > 1:
-        normal = _epipolar_normals(rig[c], cam, X[u], half[u])  # (m, 2)
-        shifts = across[None, :, None] * normal[:, None, :]  # (m, S, 2)
-    return _SweepSetup(r, usable, u, rays[u] * w[u, :, None], z, centre_ray, shifts)
+        normal = np.zeros((len(X), 2))  # (n, 2)
+        for ref, a, b in st.groups():
+            u = a + np.flatnonzero(st.usable[a:b])
+            if u.size:
+                normal[u] = _epipolar_normals(rig[c], rig[ref], X[u], half[u])
+        st.shifts = across[None, :, None] * normal[st.u, None, :]  # (m, S, 2)
+    return st
 
 
 def _sweep_scores(
-    image: np.ndarray,
-    rig: CameraRig,
-    c: int,
-    swept: list[tuple[int, _SweepSetup]],
-    ref: np.ndarray,
-    groups: list[np.ndarray],
-    shifted: bool,
-) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
-    """NCC scores of several reference cameras' sweeps into camera c (its prepared
-    ``image``), in one call (:func:`~.densify._ncc_warped`); ``swept`` holds (group index,
-    setup) pairs with usable patches, ``ref`` (K, P) the reference patches of all candidate
-    views and ``groups`` their indices per group. Returns per group the (n, D) scores (-1
-    where not usable) and, with ``shifted``, the (m, D) index of the best shift."""
-    if not swept:
-        return [], []
-    B, k, z, refs, shifts, sizes = [], [], [], [], [], []
-    for g, st in swept:
-        M, kk = _warp(rig[c], rig[st.r])
-        B.append(st.rays.astype(np.float32, copy=False) @ M.T)  # (m, P, 3)
-        k.append(np.broadcast_to(kk, (st.u.size, 3)))
-        z.append(st.z[st.u])
-        refs.append(ref[groups[g][st.u]])
-        shifts.append(st.shifts)
-        sizes.append(st.u.size)
-    ncc = _ncc_warped(
-        image, np.concatenate(B), np.concatenate(k), np.concatenate(z), np.concatenate(refs),
-        np.concatenate(shifts) if shifted else None,
-    )  # fmt: skip
-    split = np.cumsum(sizes)[:-1]
-    scores = []
-    for (_, st), part in zip(swept, np.split(ncc[0] if shifted else ncc, split), strict=True):
-        full = np.full(st.z.shape, -1.0)
-        full[st.u] = part
-        scores.append(full)
-    which = np.split(ncc[1], split) if shifted else [None] * len(swept)
-    return scores, which
+    image: np.ndarray, rig: CameraRig, c: int, st: _SweepSetup, ref: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """NCC scores of the sweeps of :func:`_sweep_setup` into camera c (its prepared
+    ``image``), in one call (:func:`~.densify._ncc_warped`); ``ref`` (m, P) are the usable
+    rows' reference patches. Returns the (n, D) scores (-1 where not usable) and, with
+    shifts, the (m, D) index of the best shift."""
+    m = st.u.size
+    B = np.empty((m, st.rays.shape[1], 3), np.float32)
+    k = np.empty((m, 3), np.float32)
+    lo = np.searchsorted(st.u, st.bounds)  # the usable rows' group bounds
+    for (ref_cam, _, _), a, b in zip(st.groups(), lo[:-1], lo[1:], strict=True):
+        if a == b:
+            continue
+        M, kk = _warp(rig[c], rig[ref_cam])
+        B[a:b] = st.rays[st.u[a:b]].astype(np.float32) @ M.T  # (m, P, 3)
+        k[a:b] = kk
+    ncc = _ncc_warped(image, B, k, st.z[st.u], ref, st.shifts)
+    scores = np.full(st.z.shape, -1.0)
+    scores[st.u] = ncc[0] if st.shifts is not None else ncc
+    return scores, ncc[1] if st.shifts is not None else None
 
 
 def _sweep_finish(
-    cam,
+    rig: CameraRig,
     st: _SweepSetup,
     scores: np.ndarray,
     which: np.ndarray | None,
@@ -765,8 +757,7 @@ def _sweep_finish(
     steps: np.ndarray,
     cfg: ViewsConfig,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Acceptance of one group's sweep (:func:`_sweep_setup`, scores (n, D) from
-    :func:`_sweep_scores`) in reference camera ``cam``.
+    """Acceptance of a sweep (:func:`_sweep_setup`, scores (n, D) from :func:`_sweep_scores`).
 
     Returns
     -------
@@ -790,7 +781,10 @@ def _sweep_finish(
         delta = np.clip(0.5 * (y0 - y2) / (y0 - 2 * y1 + y2), -0.5, 0.5)
     delta = np.where(np.isfinite(delta), delta, 0.0)
     z_best = st.z[np.arange(n), b] + delta * half * (steps[1] - steps[0])
-    Xb = cam.C + (z_best[:, None] * st.centre_ray) @ cam.R  # (n, 3) world
+    Xb = np.empty((n, 3))
+    for ref, a, e in st.groups():
+        cam = rig[ref]
+        Xb[a:e] = cam.C + (z_best[a:e, None] * st.centre_ray[a:e]) @ cam.R  # world
     shift = np.zeros((n, 2))
     if which is not None:
         j = which[np.arange(st.u.size), best[st.u]]

@@ -1,6 +1,6 @@
 """The faster forms of the plane-sweep and flow kernels (issue #14) give the results of the
 plain ones, bit for bit, on rendered images: view discovery's sweeps of several reference
-cameras in one NCC call, densification's early rejection and NCC blocks, its grid test of
+cameras set up, scored and accepted in one pass, densification's early rejection and NCC blocks, its grid test of
 taken pixels, and the forward-backward flow that goes back only from converged points."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pointtraj.reconstruct.densify import (
     prepare_images,
 )
 from pointtraj.reconstruct.flow import track_flow
-from pointtraj.reconstruct.views import discover_views
+from pointtraj.reconstruct.views import ViewsConfig, discover_views
 
 
 def plane_points(n: int, seed: int = 0) -> np.ndarray:
@@ -29,7 +29,16 @@ def plane_points(n: int, seed: int = 0) -> np.ndarray:
     return np.column_stack([rng.uniform(-0.3, 0.3, n), rng.uniform(-0.3, 0.3, n), np.zeros(n)])
 
 
-def test_discovery_of_several_reference_cameras_in_one_call_equals_one_at_a_time():
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        ViewsConfig(),
+        ViewsConfig(normal="bisector"),
+        ViewsConfig(search_sigmas=2.0),  # with sigma_px 3: shifts across the epipolar line
+    ],
+    ids=["default", "bisector", "across"],
+)
+def test_discovery_of_several_reference_cameras_in_one_call_equals_one_at_a_time(cfg):
     rig = plane_rig(angles=(-60.0, -20.0, 20.0, 60.0))
     prepared = prepare_images(rig, [im[..., 0] for im in plane_images(rig, seed=3)])
     X = plane_points(80)
@@ -38,13 +47,13 @@ def test_discovery_of_several_reference_cameras_in_one_call_equals_one_at_a_time
     half = len(X) // 2
     pix[2:, :half] = np.nan  # the first half seen by cameras 0 and 1
     pix[1:3, half:] = np.nan  # the second by 0 and 3: camera 2's sweeps use 1 and 3
-    out, searched = discover_views(rig, prepared, X, pix, proj.in_image)
+    out, searched = discover_views(rig, prepared, X, pix, proj.in_image, cfg, sigma_px=3.0)
     # each half alone: camera 2's sweeps from one reference camera per call, the same groups
     parts_out, parts_searched = pix.copy(), np.zeros_like(searched)
     for part in (slice(0, half), slice(half, None)):
         cand = np.zeros_like(proj.in_image)
         cand[:, part] = proj.in_image[:, part]
-        o, s = discover_views(rig, prepared, X, pix, cand)
+        o, s = discover_views(rig, prepared, X, pix, cand, cfg, sigma_px=3.0)
         parts_out[:, part], parts_searched[:, part] = o[:, part], s[:, part]
     np.testing.assert_array_equal(out, parts_out)
     np.testing.assert_array_equal(searched, parts_searched)
