@@ -324,3 +324,7 @@ def test_sparse_undistortion_gives_the_dense_values_bit_for_bit(share, monkeypat
     np.testing.assert_array_equal(np.stack(np.nonzero(ok)), np.stack([cams, cols]))
     np.testing.assert_array_equal(ideal, dense[0][cams, cols])
     assert not np.isin(2, cams)
+    shuffled = rng.permutation(len(cams))  # rows in any camera order
+    np.testing.assert_array_equal(
+        rig._ideal(cams[shuffled], pix[cams[shuffled], cols[shuffled]]), ideal[shuffled]
+    )
