@@ -911,7 +911,7 @@ class Tracker:
 
         proj = self.rig.project(xyz)
         seen = finite_rows(pix)
-        to_cams = _directions(self.rig, xyz).astype(np.float32)  # (C, N, 3)
+        to_cams = _directions(self.rig, xyz, np.float32)  # (C, N, 3)
         front = np.einsum("cnk,nk->cn", to_cams, _facing(seen, to_cams)) > 0
         visible = proj.in_image & front & ~self._occluded(xyz, vis, proj, misses).T  # (C, N)
         cover = np.where(seen[..., None], pix, np.where(visible[..., None], proj.pixels, np.nan))

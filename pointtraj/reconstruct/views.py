@@ -386,11 +386,17 @@ def record_misses(
     return np.ascontiguousarray(out.T.astype(np.uint8))
 
 
-def _directions(rig: CameraRig, X: np.ndarray) -> np.ndarray:
-    """(C, N, 3) unit directions from the points X (N, 3) to the camera centres."""
-    centres = rig.C  # (C, 3)
-    d = centres[:, None, :] - X[None]
-    return d / np.sqrt(squared_norm(d))[..., None]  # linalg.norm's values, at half its cost
+def _directions(rig: CameraRig, X: np.ndarray, dtype: type = np.float64) -> np.ndarray:
+    """(C, N, 3) unit directions from the points X (N, 3) to the camera centres, as ``dtype``.
+
+    Computed in float64 one camera at a time (a (N, 3) block stays in cache; the whole (C, N,
+    3) float64 array is 124 MB on paper69) and cast: the values of the whole-array form.
+    """
+    out = np.empty((len(rig), len(X), 3), dtype)
+    for c, centre in enumerate(rig.C):
+        d = centre - X
+        out[c] = d / np.sqrt(squared_norm(d))[:, None]  # linalg.norm's values, at half its cost
+    return out
 
 
 def _observed_facing(rig: CameraRig, X: np.ndarray, observed: np.ndarray) -> np.ndarray:
@@ -534,13 +540,11 @@ def discover_views(
     cand = cand & ~observed & (observed.sum(axis=0) >= 1)[None, :]
     if not cand.any():
         return out, searched
-    directions = _directions(rig, X)  # (C, N, 3)
-    to_cams = directions.astype(np.float32)
+    to_cams = _directions(rig, X, np.float32)  # (C, N, 3)
     if cfg.normal == "neighbors":
-        normals = point_normals(rig, X, observed, cfg.normal_neighbors, directions)
+        normals = point_normals(rig, X, observed, cfg.normal_neighbors)
     else:
         normals = _facing(observed, to_cams)
-    del directions  # (C, N, 3) float64: not held through the sweeps
     incidence = np.einsum("cnk,nk->cn", to_cams, normals)  # cos of the incidence angle
     cand &= incidence >= np.cos(np.radians(cfg.max_incidence_deg))
     if not cand.any():
