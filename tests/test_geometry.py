@@ -350,3 +350,20 @@ def test_finite_rows_and_pixel_distance_are_numpys_values():
     with np.errstate(invalid="ignore"):
         want = np.linalg.norm(a - b, axis=-1)
     np.testing.assert_array_equal(geometry.pixel_distance(a, b), want)
+
+
+@pytest.mark.parametrize("k", [None, 1, 3])
+def test_observed_first_lists_each_columns_true_rows_as_a_stable_sort_does(k):
+    from pointtraj.geometry import observed_first
+
+    rng = np.random.default_rng(2)
+    observed = rng.random((9, 500)) < 0.3
+    observed[:, 0] = False  # a point no camera observes
+    observed[:, 1] = True  # one every camera does
+    got = observed_first(observed, k)
+    want = np.argsort(~observed, axis=0, kind="stable")[:k]
+    assert got.shape == want.shape
+    rows = np.arange(len(got))[:, None] < observed.sum(axis=0)[None]  # the True rows listed
+    np.testing.assert_array_equal(got[rows], want[rows])
+    assert rows[:, 1].all() and not rows[:, 0].any()
+    assert np.all((got >= 0) & (got < 9))  # the rest is a valid index

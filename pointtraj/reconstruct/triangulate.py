@@ -28,7 +28,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
-from ..geometry import finite_rows, pixel_distance, undistort_normalized
+from ..geometry import finite_rows, observed_first, pixel_distance, undistort_normalized
 from .occlusion import occlusion_test
 
 __all__ = [
@@ -745,7 +745,7 @@ def _ransac_chunk(
     coordinates.
     """
     C, n = observed.shape
-    order = np.argsort(~observed, axis=0, kind="stable").T  # (n, C) observed cameras first
+    order = observed_first(observed).T  # (n, C) observed cameras first (only those are drawn)
     # Pre-scoring for large rigs: all hypotheses are scored on a random subset of each point's
     # observed views, and only the best one on all views (cost H S + C instead of H C).
     S = _PRESCORE_VIEWS

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..camera import CameraRig
 from ..errors import ValidationError, check_array
-from ..geometry import finite_rows, squared_norm
+from ..geometry import finite_rows, observed_first, squared_norm
 from ..scale import SceneLength
 from .densify import _ncc_warped, _rays, _sample, _warp, _zscore
 
@@ -453,8 +453,8 @@ def depth_uncertainty(
         K = int(counts[pts].max(initial=0))
         if K < 2:
             continue
-        cams = np.argsort(~obs, axis=0, kind="stable")[:K]  # (K, n) observing cameras first
-        valid = np.take_along_axis(obs, cams, axis=0)  # (K, n)
+        cams = observed_first(obs, K)  # (K, n) observing cameras first
+        valid = np.arange(K)[:, None] < counts[None, pts]  # (K, n)
         d = centres[cams] - X[None, pts]  # (K, n, 3)
         dist = np.linalg.norm(d, axis=2)  # (K, n)
         u = (d / np.maximum(dist[..., None], 1e-12)).astype(np.float32)
@@ -478,8 +478,8 @@ def _references(
     counts = observed.sum(axis=0)  # (N,)
     K = max(int(counts.max(initial=0)), 1)
     # each point's observing cameras, in index order, padded with unobserved ones: (N, K)
-    cams = np.argsort(~observed, axis=0, kind="stable")[:K].T
-    valid = np.take_along_axis(observed.T, cams, axis=1)  # (N, K)
+    cams = observed_first(observed, K).T
+    valid = np.arange(K)[None, :] < counts[:, None]  # (N, K)
     by_count = np.argsort(counts[ns], kind="stable")  # chunks of points with alike view counts
     for a in range(0, len(cs), _CHUNK):
         idx = by_count[a : a + _CHUNK]
