@@ -669,8 +669,7 @@ class _SweepSetup:
 
     def groups(self) -> list[tuple[int, int, int]]:
         """(reference camera, first row, end row) of each group."""
-        b = self.bounds
-        return [(int(self.r[i]), int(i), int(j)) for i, j in zip(b[:-1], b[1:], strict=True)]
+        return _groups(self.r, self.bounds)
 
 
 def _sweep_setup(
@@ -701,32 +700,37 @@ def _sweep_setup(
     patch = ideal_r[:, None, :] + offsets[None]  # (n, P, 2)
     rays = _rays(K, patch)  # (n, P, 3), camera frame, z = 1
     centre_ray = _rays(K, ideal_r)  # (n, 3)
+    groups = _groups(r, bounds)
     nr = np.empty_like(normals)  # normals in r's frame
     z0 = np.empty(len(X))  # the points' depths in r
-    st = _SweepSetup(
-        r, bounds, textured.copy(), np.zeros(0, np.int64), rays, None, centre_ray, None
-    )
-    for ref, a, b in st.groups():
+    for ref, a, b in groups:
         cam = rig[ref]
         nr[a:b] = normals[a:b] @ cam.R.T
         z0[a:b] = ((X[a:b] - cam.C) @ cam.R.T)[:, 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         w = np.einsum("nk,nk->n", nr, centre_ray)[:, None] / np.einsum("npk,nk->np", rays, nr)
     w = np.where(np.isfinite(w) & (w > 0.2) & (w < 5.0), w, np.nan)  # (n, P): plane depth ratio
-    st.usable &= np.all(np.isfinite(w), axis=1)
-    st.rays *= w[..., None]
+    usable = textured & np.all(np.isfinite(w), axis=1)
+    rays *= w[..., None]
     # depth of the ray through the observation where it passes the point (the observation
     # may sit a little off the point's projection)
-    st.z = z0[:, None] + half[:, None] * steps[None, :]  # (n, D)
-    st.u = np.flatnonzero(st.usable)
+    z = z0[:, None] + half[:, None] * steps[None, :]  # (n, D)
+    u = np.flatnonzero(usable)
+    shifts = None
     if len(across) > 1:
         normal = np.zeros((len(X), 2))  # (n, 2)
-        for ref, a, b in st.groups():
-            u = a + np.flatnonzero(st.usable[a:b])
-            if u.size:
-                normal[u] = _epipolar_normals(rig[c], rig[ref], X[u], half[u])
-        st.shifts = across[None, :, None] * normal[st.u, None, :]  # (m, S, 2)
-    return st
+        for ref, a, b in groups:
+            v = a + np.flatnonzero(usable[a:b])
+            if v.size:
+                normal[v] = _epipolar_normals(rig[c], rig[ref], X[v], half[v])
+        shifts = across[None, :, None] * normal[u, None, :]  # (m, S, 2)
+    return _SweepSetup(r, bounds, usable, u, rays, z, centre_ray, shifts)
+
+
+def _groups(r: np.ndarray, bounds: np.ndarray) -> list[tuple[int, int, int]]:
+    """(reference camera, first row, end row) of each group of rows ``bounds`` (G + 1,) that
+    share a reference camera (r (n,) per row)."""
+    return [(int(r[i]), int(i), int(j)) for i, j in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def _sweep_scores(
