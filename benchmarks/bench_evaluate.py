@@ -34,13 +34,16 @@ def _timed(label: str, fn):
 
 def main() -> None:
     from pointtraj.evaluate.groundtruth import surface_errors
-    from pointtraj.evaluate.study import EvaluateConfig, validity_samples
+    from pointtraj.evaluate.study import (
+        EvaluateConfig,
+        recorded_semantics_config,
+        validity_samples,
+    )
     from pointtraj.evaluate.validity import camera_counts, predictive_validity
     from pointtraj.executor import ExecutorConfig, open_executor
     from pointtraj.scale import scale_lengths, work_scene_scale
     from pointtraj.semantics.semantic_map import SemanticMap
     from pointtraj.session import Capture
-    from pointtraj.stages import SemanticsStageConfig
     from pointtraj.trajectories import Trajectories
     from pointtraj.workdir import WorkFolder
 
@@ -67,13 +70,7 @@ def main() -> None:
         print(f"  {len(err)} point-frames, median {1e3 * np.nanmedian(err):.4f} mm")
         smap = SemanticMap.load(wf.semantic_map)
         scfg = scale_lengths(
-            SemanticsStageConfig(
-                recognizer=smap.recognizer,
-                options=dict(smap.recognizer_options),
-                eps_e=smap.eps_e,
-            ),
-            work_scene_scale(wf),
-            "[semantics]",
+            recorded_semantics_config(smap), work_scene_scale(wf), "[semantics]"
         )  # as evaluate_work makes it
         samples = _timed(
             "predictive validity: samples",

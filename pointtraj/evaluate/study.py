@@ -781,6 +781,26 @@ def _affinity_section(
     return Section("Affinity effectiveness", body, ["affinity.png"])
 
 
+def recorded_semantics_config(smap):
+    """The semantics stage's configuration that a semantic map records: its recogniser, the
+    recogniser's options and ε_e (what predictive validity runs again without a pipeline file).
+
+    Parameters
+    ----------
+    smap : SemanticMap
+
+    Returns
+    -------
+    SemanticsStageConfig
+        Unscaled: apply the work folder's scene scale (:func:`~pointtraj.scale.scale_lengths`).
+    """
+    from ..stages import SemanticsStageConfig
+
+    return SemanticsStageConfig(
+        recognizer=smap.recognizer, options=dict(smap.recognizer_options), eps_e=smap.eps_e
+    )
+
+
 def _validity_stride(traj, cfg: EvaluateConfig) -> int:
     """Predictive validity samples every this many frames: ``cfg.validity_frames`` over the
     frames where the store has points (a reconstruction of frames A:B lives only there)."""
@@ -1088,7 +1108,6 @@ def evaluate_work(
     from ..labelfile import load_labels
     from ..semantics.semantic_map import SemanticMap
     from ..session import Capture
-    from ..stages import SemanticsStageConfig
     from ..trajectories import Trajectories
     from .groundtruth import has_ground_truth, true_labels
 
@@ -1189,11 +1208,7 @@ def evaluate_work(
         )
     if smap is not None:
         if semantics_config is None:
-            semantics_config = SemanticsStageConfig(
-                recognizer=smap.recognizer,
-                options=dict(smap.recognizer_options),
-                eps_e=smap.eps_e,
-            )
+            semantics_config = recorded_semantics_config(smap)
         semantics_config = scale_lengths(semantics_config, scale, "[semantics]")
         try:
             sections.append(
