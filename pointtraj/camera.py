@@ -500,9 +500,12 @@ class CameraRig(Sequence[Camera]):
         Returns
         -------
         (C, N, 2) float ndarray
-            Ideal pixel coordinates under each camera's K without distortion.
+            Ideal pixel coordinates under each camera's K without distortion (a float64 copy
+            of ``pixels`` where no camera has a lens model: there is nothing to remove).
         """
         pix = check_array("pixels", pixels, (len(self), None, 2))
+        if not self._projection_constants[1]:
+            return pix.astype(np.float64)
         sparse = self._on_finite(pix, self._ideal)
         if sparse is not None:
             return sparse
@@ -564,6 +567,8 @@ class CameraRig(Sequence[Camera]):
 
     def _ideal(self, cams: np.ndarray, pix: np.ndarray) -> np.ndarray:
         """:meth:`undistort_pixels` of pixels (M, 2) of the cameras ``cams`` (M,)."""
+        if not self._projection_constants[1]:
+            return pix.astype(np.float64)
         return self._by_camera(cams, pix, ideal=True)
 
     def _by_camera(self, cams: np.ndarray, pix: np.ndarray, ideal: bool) -> np.ndarray:

@@ -328,3 +328,21 @@ def test_sparse_undistortion_gives_the_dense_values_bit_for_bit(share, monkeypat
     np.testing.assert_array_equal(
         rig._ideal(cams[shuffled], pix[cams[shuffled], cols[shuffled]]), ideal[shuffled]
     )
+
+
+def test_undistortion_without_lenses_gives_the_pixels_back():
+    """A rig without lens models has nothing to undistort: the pixels come back as a float64
+    copy, NaN in place, within rounding of the round trip through normalised coordinates."""
+    rng = np.random.default_rng(12)
+    rig = make_rig(rng, [[0.0] * 5] * 3)
+    pix = rng.uniform([-300, -300], [1600, 1000], size=(3, 400, 2)).astype(np.float32)
+    pix[rng.random((3, 400)) > 0.3] = np.nan
+    out = rig.undistort_pixels(pix)
+    assert out.dtype == np.float64 and not np.shares_memory(out, pix)
+    np.testing.assert_array_equal(out, pix.astype(np.float64))
+    cams, cols, ideal = rig.undistort_observed(pix)
+    np.testing.assert_array_equal(ideal, pix[cams, cols].astype(np.float64))
+    trip = np.concatenate([rig.normalized(pix), np.ones((3, 400, 1))], axis=-1) @ np.swapaxes(
+        rig.K, 1, 2
+    )
+    np.testing.assert_allclose(out, trip[..., :2], atol=1e-9)

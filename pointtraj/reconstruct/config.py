@@ -80,7 +80,11 @@ class ReconstructConfig:
         "Still views". 0: every view gets the pyramidal flow.
     still_noise : float
         See ``still_px``: the largest residual per pixel, in units of the image's noise (the
-        mean squared frame difference of its quietest quarter of windows).
+        mean squared frame difference of its quietest quarter of windows). Textured windows
+        keep more of the sensor noise through compression than the quietest quarter: on
+        paper69 the static views that the step takes to within the flow's own agreement
+        (0.005 px median, 0.035 px p99) have residuals up to 6 times that noise; from 8 times
+        the agreement degrades (``docs/reconstruction.md``, "Still views").
     cover_px : float
         A new point is already covered when, in at least ``cover_views`` of its cameras, a live
         trajectory's observation lies within this many pixels of its own.
@@ -154,9 +158,9 @@ class ReconstructConfig:
         (1: every frame, the paper). None (the default, the key left out): chosen from the
         rig by :meth:`for_rig`, :data:`MATCH_EVERY_COVER` (2) where ``cover_visible`` is on
         (rigs of 32 cameras and more, whose live trajectories cover every camera where they
-        are visible) and 1 elsewhere. Densification (``densify``) still runs every frame,
-        grown from the tracked points that moved where ``densify.seeds`` is ``"moving"`` or
-        ``"all"`` (``docs/reconstruction.md``, "Matching every other frame").
+        are visible) and 1 elsewhere. In between, densification (``densify``) grows from the
+        new matches and the fast-moving points only (``densify.between_motion_px``;
+        ``docs/reconstruction.md``, "Matching every other frame").
     match_moving : bool
         On the frames between (``match_every`` above 1), match features only in the image
         regions where tracked points move (:func:`~.matching.moving_boxes`): the surfaces that
@@ -248,7 +252,7 @@ class ReconstructConfig:
     fb_max_px: float = 1.0
     fb_skip_views: int = 4
     still_px: float = 0.1
-    still_noise: float = 4.0
+    still_noise: float = 6.0
     cover_px: float = 3.0
     cover_views: int = 2
     cover_visible: str = "auto"

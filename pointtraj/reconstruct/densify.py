@@ -115,9 +115,22 @@ class DensifyConfig:
         static, already covered surface (a floor) stops growing. ``"all"``: every point of the
         frame, so that the covered area grows by ``rounds * radius_px`` every frame, over static
         surfaces too, until ``max_points`` caps it (about 20,000 new points a frame on paper69).
+        On the frames between whole-image matchings, ``between_motion_px`` picks the tracked
+        points that seed, whatever this is (``"new"``: none).
     seed_motion_px : float
         With ``seeds = "moving"``: the image motion (pixels, the median over the cameras that
         follow the point) above which a tracked point seeds densification.
+    between_motion_px : float
+        On the frames between two whole-image matchings (``[reconstruct] match_every`` above
+        1, chosen on rigs of 32 cameras and more), densification grows from the frame's new
+        matches and from the tracked points whose image moved by more than this (and
+        ``seed_motion_px``): fast motion shows the most new surface in a frame, slow motion
+        waits for the next whole-image matching. ``inf``: no densification between, except on
+        the frame after one where it stopped at ``max_points`` (the rest of that frame's work:
+        a capture's first frame on paper69), which densifies as a matched frame does. On
+        paper69 (``docs/reconstruction.md``, "Densification between matched frames from fast
+        motion") the frames between cost 7-8 CPU-s of sweeps from every moving point, for
+        about 800 new points.
     """
 
     enabled: bool | None = None
@@ -140,6 +153,7 @@ class DensifyConfig:
     max_points: int = 20000
     seeds: str = "moving"
     seed_motion_px: float = 1.0
+    between_motion_px: float = 4.0
 
     def __post_init__(self) -> None:
         checks = {
@@ -161,6 +175,7 @@ class DensifyConfig:
             "max_partners": self.max_partners >= 0,
             "max_points": self.max_points >= 1,
             "seed_motion_px": self.seed_motion_px >= 0,
+            "between_motion_px": self.between_motion_px >= 0,
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:

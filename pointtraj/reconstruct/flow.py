@@ -152,7 +152,7 @@ def still_flow(
     *,
     window: int = 21,
     max_px: float = 0.1,
-    noise_ratio: float = 4.0,
+    noise_ratio: float = 6.0,
 ) -> np.ndarray:
     """The flow of the points whose window barely moves, from one Lucas-Kanade step.
 

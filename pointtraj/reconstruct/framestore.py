@@ -139,6 +139,7 @@ class FrameStore:
             misses_index=np.flatnonzero(state.misses),
             misses_values=state.misses.ravel()[np.flatnonzero(state.misses)],
             next_id=np.int64(state.next_id),
+            densify_backlog=np.bool_(state.densify_backlog),
         )
 
     # -- reading ---------------------------------------------------------------------------------
@@ -265,6 +266,8 @@ class FrameStore:
                 int(d["next_id"]),
                 d["lone"],
                 misses.reshape(N, C),
+                # absent before densification's backlog: none
+                densify_backlog=bool(d["densify_backlog"]) if "densify_backlog" in d else False,
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise FileFormatError(path, f"unreadable tracker state ({exc})") from None

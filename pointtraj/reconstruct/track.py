@@ -88,6 +88,10 @@ class TrackState:
     misses : (N, C) uint8 ndarray, optional
         View discovery's failed searches in a row per point and camera, the back-off of
         :func:`~.views.retry_due` (0: search the camera at the next frame). Default: all 0.
+    densify_backlog : bool
+        The frame's densification stopped at ``densify.max_points``: the next frame densifies
+        as a matched frame does, also where it lies between whole-image matchings
+        (``densify.between_motion_px``).
     """
 
     frame: int
@@ -98,6 +102,7 @@ class TrackState:
     next_id: int
     lone: np.ndarray | None = None
     misses: np.ndarray | None = None
+    densify_backlog: bool = False
 
     def __post_init__(self) -> None:
         if self.lone is None:
@@ -525,15 +530,24 @@ class Tracker:
 
         # 2. dense matching: new points where no live trajectory is, every match_every frames;
         # in between (match_moving) only around the moving points. Densification grows from
-        # the moving points every frame.
+        # the new matches and the tracked points that moved; in between from the fast ones.
         new_tri, new_obs = None, np.zeros((C, 0, 2))
         live_proj, cover = None, np.zeros((C, 0, 2))
         matching = restart or (t - self._first_frame) % cfg.match_every == 0
         in_between = not matching and cfg.match_moving  # match around the moving points
-        densifying = cfg.densify.enabled and (matching or cfg.densify.seeds != "new")
-        moved = None  # (N,) tracked points whose image moved
-        if (densifying and cfg.densify.seeds == "moving") or in_between:
-            moved = _image_motion(obs, st.pixels) > cfg.densify.seed_motion_px
+        dcfg = cfg.densify
+        whole = matching or st.densify_backlog  # densify as on a matched frame
+        densifying = dcfg.enabled and (
+            whole or (dcfg.seeds != "new" and np.isfinite(dcfg.between_motion_px))
+        )
+        moved = seeding = None  # (N,) tracked points whose image moved, that seed densify
+        if densifying or in_between:
+            motion = _image_motion(obs, st.pixels)
+            moved = motion > dcfg.seed_motion_px
+            if not whole:
+                seeding = motion > max(dcfg.seed_motion_px, dcfg.between_motion_px)
+            elif dcfg.seeds == "moving":
+                seeding = moved
         boxes = None  # per camera, where to match on a frame between matched ones
         if matching or in_between or densifying:
             # where the live trajectories are followed
@@ -580,8 +594,10 @@ class Tracker:
         parts = [(tri_old, obs, keep_old)]
         if new_tri is not None:
             parts.append((new_tri, new_obs, keep_new))
-        if densifying:  # seeds = "moving": the tracked points that moved seed it too
-            parts.append(self._densify(grey, prepared, parts, cover, moved))
+        backlog = False  # densification stopped at its max_points
+        if densifying:  # the tracked points that moved seed it too
+            parts.append(self._densify(grey, prepared, parts, cover, seeding))
+            backlog = parts[-1][1].shape[1] >= cfg.densify.max_points
         xyz, vis, err, pix = _union(parts)
         n_old = int(keep_old.sum())
         old_ids = st.ids[keep_old]
@@ -633,6 +649,7 @@ class Tracker:
             st.next_id + n_new,
             lone[seen],
             misses[seen],
+            densify_backlog=backlog,
         )
         self._prev_grey = grey
         self._projected = None
@@ -811,22 +828,22 @@ class Tracker:
         prepared: Sequence[np.ndarray],
         parts: list[tuple[Triangulation, np.ndarray, np.ndarray]],
         cover: np.ndarray,
-        moved: np.ndarray | None,
+        seeding: np.ndarray | None,
     ) -> tuple[Triangulation, np.ndarray, np.ndarray]:
         """Patch densification (:func:`~.densify.densify`) into pixels that no point of
-        ``parts`` takes, grown from the seeds that ``densify.seeds`` names: the frame's new
-        matches (``parts[1:]``), with ``"moving"`` also the tracked points (``parts[0]``) whose
-        ``moved`` (N,) is set, with ``"all"`` every point. ``cover`` (C, n, 2) are more pixels
-        that count as taken (:meth:`_cover_pixels`)."""
+        ``parts`` takes, grown from the frame's new matches (``parts[1:]``) and the tracked
+        points (``parts[0]``) where ``seeding`` (N,) is set (None: every one, with ``seeds =
+        "all"`` on a matched frame); none of the tracked ones with ``seeds = "new"``.
+        ``cover`` (C, n, 2) are more pixels that count as taken (:meth:`_cover_pixels`)."""
         from .densify import densify
         from .triangulate import triangulate_ransac
 
         cfg = self.config
         xyz, _, _, pix = _union(parts)
         taken = np.concatenate([pix, cover], axis=1) if cover.shape[1] else pix
-        if cfg.densify.seeds != "all":
+        if cfg.densify.seeds == "new" or seeding is not None:
             tri, obs, keep = parts[0]
-            tracked = [(tri, obs, keep & moved)] if cfg.densify.seeds == "moving" else []
+            tracked = [] if cfg.densify.seeds == "new" else [(tri, obs, keep & seeding)]
             xyz, _, _, pix = _union(tracked + parts[1:])
         dense = densify(self.rig, prepared, xyz, pix, taken, cfg.densify)
         for c in range(len(self.rig)):  # keep the views that Lucas-Kanade can follow: a flow

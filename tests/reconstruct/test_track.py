@@ -193,29 +193,58 @@ def test_tracker_restarts_on_a_frame_gap(moving_plane):
 
 
 def test_densification_grows_from_moving_points_between_matched_frames(moving_plane):
-    """With ``match_every = 2`` (and ``match_moving`` off) the odd frames match nothing, but
-    densification still grows
-    from the tracked points that moved (``seeds = "moving"``); from new matches alone
-    (``seeds = "new"``) it has no seed there."""
+    """With ``match_every = 2`` (and ``match_moving`` off) the odd frames match nothing.
+    Densification still grows there from the tracked points that moved by more than
+    ``between_motion_px`` (``seeds = "moving"``): with 0, from every point that moved; with a
+    motion larger than the plane's, or ``inf``, from none. From new matches alone (``seeds =
+    "new"``) it has no seed there."""
     from pointtraj.reconstruct.densify import DensifyConfig
 
     rig, frames = moving_plane
     counts = {}
-    for seeds in ("moving", "new"):
+    cases = (("moving", 0.0), ("new", 0.0), ("moving", 1000.0), ("moving", float("inf")))
+    for seeds, between in cases:
         cfg = ReconstructConfig(
             matching=MatchingConfig(num_features=300),
             match_every=2,
             match_moving=False,
-            densify=DensifyConfig(enabled=True, seeds=seeds),
+            densify=DensifyConfig(enabled=True, seeds=seeds, between_motion_px=between),
         )
         tracker = Tracker(rig, cfg, edges=EDGES3)
         r0 = tracker.step(0, frames[0])
+        assert not tracker.state.densify_backlog  # the frame's densification was not cut
         r1 = tracker.step(1, frames[1])
-        counts[seeds] = r1.num_new
+        counts[seeds, between] = r1.num_new
         assert r1.num_new == len(r1) - np.isin(r1.ids, r0.ids).sum()
         assert r1.ids[~np.isin(r1.ids, r0.ids)].min(initial=r0.ids.max() + 1) > r0.ids.max()
-    assert counts["new"] == 0
-    assert counts["moving"] > 100  # the plane moves: every tracked point seeds
+    assert counts["new", 0.0] == 0
+    assert counts["moving", 0.0] > 100  # the plane moves: every tracked point seeds
+    assert counts["moving", 1000.0] == counts["moving", float("inf")] == 0
+
+
+def test_densification_cut_at_max_points_goes_on_at_the_next_frame(moving_plane, tmp_path):
+    """A frame whose densification stops at ``max_points`` leaves a backlog: the next frame
+    densifies although it lies between whole-image matchings, and the backlog is part of the
+    tracker state that a resumed run reads back."""
+    from pointtraj.reconstruct.densify import DensifyConfig
+    from pointtraj.reconstruct.framestore import FrameStore
+
+    rig, frames = moving_plane
+    cfg = ReconstructConfig(
+        matching=MatchingConfig(num_features=300),
+        match_every=2,
+        match_moving=False,
+        densify=DensifyConfig(enabled=True, max_points=20, between_motion_px=float("inf")),
+    )
+    tracker = Tracker(rig, cfg, edges=EDGES3)
+    tracker.step(0, frames[0])
+    assert tracker.state.densify_backlog
+    store = FrameStore(tmp_path, len(rig))
+    store.write_live(tracker.state)
+    assert store.read_live().densify_backlog
+    r1 = tracker.step(1, frames[1])
+    assert r1.num_new > 0  # densified from the moving points, no matching at this frame
+    assert tracker.state.densify_backlog == (r1.num_new >= 20)
 
 
 def test_frames_between_match_where_points_move(moving_plane):
