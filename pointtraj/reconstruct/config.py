@@ -422,7 +422,7 @@ class ReconstructConfig:
             logger.info(
                 "rig-derived settings: %s; matching: guided %s, GMS threshold %s; "
                 "densification %s; cover_visible %s (view discovery searches each camera "
-                "every %d frame%s); match_skip_px %s; match_every %s",
+                "every %d frame%s); match_skip_px %s; match_every %s%s",
                 choice.reason,
                 how("on" if guided else "off", m.guided),
                 how(f"{gms:g}", m.gms_threshold),
@@ -432,6 +432,7 @@ class ReconstructConfig:
                 "" if every == 1 else "s",
                 how(f"{skip:g}", cfg.match_skip_px),
                 how(match_every, cfg.match_every),
+                _between(match_every, densify, d),
             )
         return replace(
             cfg,
@@ -441,6 +442,16 @@ class ReconstructConfig:
             matching=replace(m, guided=guided, gms_threshold=gms),
             densify=replace(d, enabled=densify),
         )
+
+
+def _between(match_every: int, densify: bool, d: DensifyConfig) -> str:
+    """What densification does on the frames between whole-image matchings, for the log."""
+    if match_every == 1 or not densify:
+        return ""
+    if not np.isfinite(d.between_motion_px) or d.seeds == "new":
+        return " (no densification between)"
+    motion = max(d.between_motion_px, d.seed_motion_px)
+    return f" (densification between from points moving over {motion:g} px)"
 
 
 #: ``match_skip_px`` left to the rig, where live trajectories cover every camera where they
