@@ -448,10 +448,9 @@ def _between(match_every: int, densify: bool, d: DensifyConfig) -> str:
     """What densification does on the frames between whole-image matchings, for the log."""
     if match_every == 1 or not densify:
         return ""
-    if not np.isfinite(d.between_motion_px) or d.seeds == "new":
+    if not np.isfinite(d.between_seed_px):
         return " (no densification between)"
-    motion = max(d.between_motion_px, d.seed_motion_px)
-    return f" (densification between from points moving over {motion:g} px)"
+    return f" (densification between from points moving over {d.between_seed_px:g} px)"
 
 
 #: ``match_skip_px`` left to the rig, where live trajectories cover every camera where they

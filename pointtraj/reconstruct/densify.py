@@ -185,6 +185,15 @@ class DensifyConfig:
                 f'DensifyConfig.seeds must be "moving", "new" or "all", not {self.seeds!r}'
             )
 
+    @property
+    def between_seed_px(self) -> float:
+        """The image motion (pixels) above which a tracked point seeds densification on a
+        frame between whole-image matchings; ``inf`` where nothing does there (``seeds =
+        "new"`` or ``between_motion_px = inf``)."""
+        if self.seeds == "new":
+            return float("inf")
+        return max(self.between_motion_px, self.seed_motion_px)
+
 
 #: Default memory budget (MB) of the prepared images that :class:`PreparedImages` keeps.
 PREPARED_BUDGET_MB = 256.0

@@ -537,15 +537,13 @@ class Tracker:
         in_between = not matching and cfg.match_moving  # match around the moving points
         dcfg = cfg.densify
         whole = matching or st.densify_backlog  # densify as on a matched frame
-        densifying = dcfg.enabled and (
-            whole or (dcfg.seeds != "new" and np.isfinite(dcfg.between_motion_px))
-        )
+        densifying = dcfg.enabled and (whole or np.isfinite(dcfg.between_seed_px))
         moved = seeding = None  # (N,) tracked points whose image moved, that seed densify
-        if densifying or in_between:
+        if in_between or (densifying and (not whole or dcfg.seeds == "moving")):
             motion = _image_motion(obs, st.pixels)
             moved = motion > dcfg.seed_motion_px
             if not whole:
-                seeding = motion > max(dcfg.seed_motion_px, dcfg.between_motion_px)
+                seeding = motion > dcfg.between_seed_px
             elif dcfg.seeds == "moving":
                 seeding = moved
         boxes = None  # per camera, where to match on a frame between matched ones
