@@ -103,8 +103,7 @@ def main() -> None:
             seen_before = np.zeros_like(cand)
             moved = np.full(n, np.inf)
             if "ids" in prev and n:
-                where = {int(i): j for j, i in enumerate(prev["ids"])}
-                idx = np.array([where.get(int(i), -1) for i in ctx["old_ids"]], np.int64)
+                idx = _positions(prev["ids"], ctx["old_ids"])
                 ok = idx >= 0
                 seen_before[:, ok] = prev["observed"][:, idx[ok]]
                 moved[ok] = np.linalg.norm(X[ok] - prev["xyz"][idx[ok]], axis=1)
@@ -184,6 +183,15 @@ def main() -> None:
             )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
+
+
+def _positions(ids: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """(n,) position of each of ``wanted`` in ``ids`` (unique), -1 where absent."""
+    if len(ids) == 0:
+        return np.full(len(wanted), -1, np.int64)
+    order = np.argsort(ids, kind="stable")
+    pos = order[np.minimum(np.searchsorted(ids, wanted, sorter=order), len(ids) - 1)]
+    return np.where(ids[pos] == wanted, pos, -1)
 
 
 def _print_row(row: dict) -> None:
