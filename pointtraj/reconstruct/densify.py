@@ -75,9 +75,11 @@ class DensifyConfig:
         Samples per side of the square patch.
     patch_spacing_px : float
         Spacing of the patch's samples in the reference image.
-    min_ncc : float
+    min_ncc : float or None
         Mean NCC a candidate needs at its best depth; also what a partner view needs to observe
-        the new point.
+        the new point. None (the default, the key left out): chosen from the rig
+        (:func:`~.config.rig_choices`): 0.8 on medium images (0.25-0.6 megapixels, close
+        cameras), whose textures are softer, 0.9 elsewhere.
     min_margin : float
         The best mean NCC must exceed every score more than ``peak_width`` steps from the best
         depth by this much.
@@ -106,8 +108,10 @@ class DensifyConfig:
         (0: all). Bounds the cost on dense rigs.
     max_points : int
         At most this many new points per frame (bounds the cost).
-    seeds : {"moving", "new", "all"}
-        Which of the frame's points densification grows from. ``"new"``: the points that
+    seeds : {"moving", "new", "all"} or None
+        Which of the frame's points densification grows from; None (the default, the key left
+        out): chosen from the rig (:func:`~.config.rig_choices`): ``"all"`` on medium images, where
+        the image bounds what it can add, ``"moving"`` elsewhere. ``"new"``: the points that
         matching found at this frame (at a capture's first frame, all of them), so that it fills
         around matched texture and stops there. ``"moving"``: those and the tracked points whose
         image moved by more than ``seed_motion_px`` since the previous frame in the cameras
@@ -140,7 +144,7 @@ class DensifyConfig:
     depth_steps: int = 33
     patch_size: int = 7
     patch_spacing_px: float = 2.0
-    min_ncc: float = 0.9
+    min_ncc: float | None = None
     min_margin: float = 0.1
     peak_width: int = 3
     min_std: float = 4.0
@@ -151,7 +155,7 @@ class DensifyConfig:
     rounds: int = 2
     max_partners: int = 3
     max_points: int = 20000
-    seeds: str = "moving"
+    seeds: str | None = None
     seed_motion_px: float = 1.0
     between_motion_px: float = 4.0
 
@@ -163,7 +167,7 @@ class DensifyConfig:
             "depth_steps": self.depth_steps >= 3,
             "patch_size": self.patch_size >= 3,
             "patch_spacing_px": self.patch_spacing_px > 0,
-            "min_ncc": -1 <= self.min_ncc <= 1,
+            "min_ncc": self.min_ncc is None or -1 <= self.min_ncc <= 1,
             "min_margin": self.min_margin >= 0,
             "peak_width": 1 <= self.peak_width < self.depth_steps // 2,
             "min_std": self.min_std >= 0,
@@ -180,7 +184,7 @@ class DensifyConfig:
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
             raise ValidationError(f"DensifyConfig.{bad[0]} out of range: {getattr(self, bad[0])!r}")
-        if self.seeds not in ("moving", "new", "all"):
+        if self.seeds not in (None, "moving", "new", "all"):
             raise ValidationError(
                 f'DensifyConfig.seeds must be "moving", "new" or "all", not {self.seeds!r}'
             )
@@ -449,6 +453,7 @@ def densify(
         Every observation already made at this frame (distorted pixels, NaN where absent); no
         candidate is placed within ``0.75 * step_px`` of one.
     config : DensifyConfig, optional
+        ``min_ncc`` left out (None) is chosen from ``rig`` (:func:`~.config.rig_choices`).
 
     Returns
     -------
@@ -457,6 +462,10 @@ def densify(
         or more partners (NaN elsewhere).
     """
     cfg = config or DensifyConfig()
+    if cfg.min_ncc is None:
+        from .config import rig_choices
+
+        cfg = dataclasses.replace(cfg, min_ncc=rig_choices(rig).densify_ncc)
     C = len(rig)
     if len(images) != C:
         raise ValidationError(f"densify: expected {C} images, got {len(images)}")

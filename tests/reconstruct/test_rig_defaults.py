@@ -18,12 +18,15 @@ from pointtraj.synth.presets import make_rig
 @pytest.mark.parametrize(
     "preset, guided, gms, densify, cover",
     [
-        ("ring8", False, GMS_THRESHOLD, False, "off"),  # the demo: as before
-        ("tiny4", False, GMS_THRESHOLD, False, "off"),
-        ("ring12", False, GMS_THRESHOLD, False, "off"),
-        ("paper69", True, GMS_THRESHOLD, True, "on"),  # what pipelines/paper69.toml set
-        ("lab4", True, 2.0, True, "off"),  # webcams: what Pose2Sim's pipeline set
-        ("narrow7", True, 2.0, True, "off"),
+        # the demo's 640x512 and ring12's 800x640, 44 and 35 degrees apart: densified at the
+        # medium images' NCC from every point
+        ("ring8", False, GMS_THRESHOLD, (0.8, "all"), "off"),
+        ("ring12", False, GMS_THRESHOLD, (0.8, "all"), "off"),
+        ("tiny4", False, GMS_THRESHOLD, None, "off"),  # 320x256, 87 degrees apart
+        ("paper69q", True, GMS_THRESHOLD, None, "on"),  # 320x256: small images
+        ("paper69", True, GMS_THRESHOLD, (0.9, "moving"), "on"),  # pipelines/paper69.toml's
+        ("lab4", True, 2.0, (0.9, "moving"), "off"),  # webcams: what Pose2Sim's pipeline set
+        ("narrow7", True, 2.0, (0.9, "moving"), "off"),
     ],
 )
 def test_for_rig_chooses_from_baselines_and_resolution(preset, guided, gms, densify, cover, caplog):
@@ -32,7 +35,10 @@ def test_for_rig_chooses_from_baselines_and_resolution(preset, guided, gms, dens
         cfg = ReconstructConfig().for_rig(rig)
     assert cfg.matching.guided is guided
     assert cfg.matching.gms_threshold == gms
-    assert cfg.densify.enabled is densify
+    assert cfg.densify.enabled is (densify is not None)
+    if densify is not None:
+        assert (cfg.densify.min_ncc, cfg.densify.seeds) == densify
+        assert f"min_ncc {densify[0]:g} (from the rig), seeds {densify[1]}" in caplog.text
     assert cfg.cover_visible == cover
     # matching skips the features on live trajectories only where they cover every camera
     assert cfg.match_skip_px == (0.5 * cfg.cover_px if cover == "on" else 0.0)
@@ -41,7 +47,7 @@ def test_for_rig_chooses_from_baselines_and_resolution(preset, guided, gms, dens
     assert "rig-derived settings" in caplog.text and "from the rig" in caplog.text
     # what densification does on the frames between is said where there are such frames
     between = "densification between from points moving over 4 px" in caplog.text
-    assert between is (cover == "on")
+    assert between is (cover == "on" and densify is not None)
     # Resolved once: nothing is left to choose, nothing is logged again.
     caplog.clear()
     with caplog.at_level("INFO", logger="pointtraj.reconstruct.config"):
@@ -60,6 +66,10 @@ def test_for_rig_keeps_what_is_set(caplog):
     assert cfg.matching.guided is False and cfg.matching.gms_threshold == 6.0
     assert cfg.densify.enabled is False
     assert "guided off (set)" in caplog.text and "densification off (set)" in caplog.text
+    # densification's threshold and seeds set in the file are kept on a medium-image rig
+    kept = ReconstructConfig(densify=DensifyConfig(min_ncc=0.85, seeds="new"))
+    assert kept.for_rig(make_rig("ring8")).densify.min_ncc == 0.85
+    assert kept.for_rig(make_rig("ring8")).densify.seeds == "new"
     assert ReconstructConfig(match_skip_px=2.0).for_rig(make_rig("ring8")).match_skip_px == 2.0
     with pytest.raises(ValidationError, match="match_skip_px"):
         ReconstructConfig(match_skip_px=-1.0)
