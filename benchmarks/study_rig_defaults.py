@@ -85,8 +85,8 @@ def main() -> None:
             f"| {name} | {len(rig)} | >= {view.min_cameras} cameras: {summary} | {within} "
             f"| {g.num_edges} | {wide_volume_rule_pairs(rig)} | guided "
             f"{'on' if c.guided else 'off'}, GMS {c.gms_threshold:g}, densify "
-            f"{'on' if c.densify else 'off'} ({c.megapixels:.2f} MP, nearest partner "
-            f"{c.nearest_deg:.1f} deg) |"
+            f"{f'on at NCC {c.densify_ncc:g} from {c.densify_seeds}' if c.densify else 'off'} "
+            f"({c.megapixels:.2f} MP, nearest partner {c.nearest_deg:.1f} deg) |"
         )
 
 
