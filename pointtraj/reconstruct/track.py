@@ -326,6 +326,35 @@ def occlusion_tolerance(
 # -- the tracker ------------------------------------------------------------------------------
 
 
+def confirm_facing(cfg: ReconstructConfig, *, log: bool = False) -> bool:
+    """Whether new two-view points are searched again facing their cameras
+    (``[reconstruct.views] confirm_incidence_deg``).
+
+    The search finds a view only within about the patch spacing of its epipolar line; where
+    the images' tolerance ``sigma_px`` is larger (a rig calibrated to a few pixels) and the
+    search does not reach across the line (``search_sigmas`` under 1), a right point is
+    missed as often as a wrong one, and the extra search would judge the new points by
+    chance: it is off there, and says so when ``log`` is set. On the Pose2Sim demo
+    (``sigma_px`` 6) it lowered the labelled body points with three views from 4.1 to 3.4 %
+    and the nearest-part agreement from 81.2 to 79.7 %.
+    """
+    v = cfg.views
+    if not (v.enabled and v.confirm_new and v.confirm_incidence_deg > 0):
+        return False
+    if cfg.sigma_px <= v.patch_spacing_px or v.search_sigmas >= 1:
+        return True
+    if log:
+        logger.warning(
+            "new two-view points are not searched again facing their cameras: sigma_px = "
+            "%.3g is above the patch spacing of view discovery (%.3g px) and the search does "
+            "not reach across the epipolar line ([reconstruct.views] search_sigmas = %.3g)",
+            cfg.sigma_px,
+            v.patch_spacing_px,
+            v.search_sigmas,
+        )
+    return False
+
+
 def effective_fb_skip(cfg: ReconstructConfig, *, log: bool = False) -> int:
     """The camera count from which tracked points skip the backward flow check (0: none skip).
 
@@ -420,6 +449,7 @@ class Tracker:
                 self.config.densify.max_angle_deg,
             )
         self._fb_skip = effective_fb_skip(self.config, log=True)
+        self._confirm_facing = confirm_facing(self.config, log=True)
         lonely = [rig.names[c] for c in range(len(rig)) if not np.isin(c, self.edges).any()]
         if lonely and len(rig) > 1:
             logger.warning(
@@ -771,8 +801,17 @@ class Tracker:
             due[:, :n_old] = retry_due(misses[:n_old], old_ids, t, every, max_every)
             one_view = finite_rows(pix[:, :n_old]).sum(axis=0) < 2
             due[:, :n_old] |= one_view[None, :]
+        # new two-view points that no camera could be searched for are searched again
+        confirm = np.arange(N) >= n_old if self._confirm_facing else None
         grown, searched = discover_views(
-            self.rig, images, xyz, pix, cand & due, cfg.views, sigma_px=cfg.sigma_px
+            self.rig,
+            images,
+            xyz,
+            pix,
+            cand & due,
+            cfg.views,
+            sigma_px=cfg.sigma_px,
+            confirm=confirm,
         )
         before = xyz
         xyz, vis, err, pix = self._retriangulate(xyz, vis, err, pix, grown)

@@ -103,6 +103,67 @@ def test_discovery_needs_texture_and_a_facing_surface(sixty):
     assert not searched4[3].any() and not np.isfinite(out4[3]).any()
 
 
+def test_new_two_view_points_are_searched_again_facing_their_cameras():
+    """A two-view point whose fitted normal rules out every other camera is searched once more,
+    facing its observing cameras (``confirm``): a right point is found there, a wrong match
+    (two views that agree along the epipolar line) is searched and not found, so that
+    ``confirm_new`` can drop it. Tracked points are not searched again."""
+    rig = plane_rig(angles=(-20.0, 20.0, 60.0))
+    grey = [im[..., 0] for im in plane_images(rig, seed=5)]
+    prepared = prepare_images(rig, grey)
+    X = plane_points(120, seed=6)
+    pix = two_view_observations(rig, X)  # cameras at -20 and 20 degrees, none at 60
+    cand = rig.project(X).in_image
+    cfg = ViewsConfig(max_incidence_deg=50.0)  # the plane's normal is 60 degrees from camera 2
+    out, searched = discover_views(rig, prepared, X, pix, cand, cfg)
+    assert not searched[2].any() and not np.isfinite(out[2]).any()
+    # confirmed: the facing direction (0 degrees) is 60 degrees from camera 2
+    new = np.arange(len(X)) >= 20  # the first 20 are tracked points
+    out, searched = discover_views(rig, prepared, X, pix, cand, cfg, confirm=new)
+    found = np.all(np.isfinite(out[2]), axis=1)
+    assert not searched[2, :20].any() and not found[:20].any()
+    assert searched[2, 20:].mean() > 0.9 and found[20:].mean() > 0.4, found[20:].mean()
+    err = np.linalg.norm(out[2, found] - rig.project(X).pixels[2, found], axis=1)
+    assert np.median(err) < 0.75  # the bisector's plane is 40 degrees off the true one
+    # wrong matches: camera 1's view slid 6 px along its epipolar line (the point moves off the
+    # plane, both views still agree); camera 2 sees the plane there, not the point
+    from pointtraj.reconstruct.triangulate import triangulate_points
+
+    wrong = pix.copy()
+    far = X + 0.04 * (X - rig.C[0]) / np.linalg.norm(X - rig.C[0], axis=1, keepdims=True)
+    wrong[1] = rig.project(far).pixels[1]  # camera 0's ray, 4 cm deeper
+    Xw = triangulate_points(rig, wrong)
+    assert np.median(np.abs(Xw[:, 2])) > 0.01
+    out, searched = discover_views(
+        rig, prepared, Xw, wrong, rig.project(Xw).in_image, cfg, confirm=np.ones(len(X), bool)
+    )
+    found = np.all(np.isfinite(out[2]), axis=1)
+    assert searched[2].mean() > 0.9 and found.mean() < 0.1, found.mean()
+    # off: nothing searched
+    off = dataclasses.replace(cfg, confirm_incidence_deg=0.0)
+    _, searched = discover_views(rig, prepared, X, pix, cand, off, confirm=new)
+    assert not searched[2].any()
+
+
+def test_tracker_confirms_new_points_facing_their_cameras():
+    """In the tracker, new points whose fitted normal rules out the third camera gain it through
+    the confirmation search (on by default); without it, only those matched in both pairs
+    have three."""
+    rig = plane_rig(angles=(-20.0, 20.0, 60.0))
+    frames = plane_frames(rig, 1, seed=3)
+    base = ReconstructConfig(
+        matching=MatchingConfig(num_features=600), max_angle_deg=45.0, min_views_new=2
+    )
+    share = {}
+    for deg in (0.0, 89.0):
+        views = ViewsConfig(max_incidence_deg=50.0, confirm_incidence_deg=deg)
+        rec = Tracker(rig, dataclasses.replace(base, views=views)).step(0, frames[0])
+        n_views = np.count_nonzero(rec.visibility > 0.05 * 255, axis=1)
+        assert len(n_views) > 20
+        share[deg] = np.mean(n_views >= 3)
+    assert share[0.0] < 0.5 and share[89.0] > share[0.0] + 0.4, share
+
+
 def test_tracker_points_gain_the_third_view(sixty):
     rig, _ = sixty
     velocity = np.array([0.01, 0.0, 0.005])
