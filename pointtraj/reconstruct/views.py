@@ -122,7 +122,7 @@ class ViewsConfig:
         A new point left with two views is dropped when another camera was searched for it
         with a usable patch and did not confirm it (two views always agree with a wrong match
         along the epipolar line; a third decides).
-    confirm_incidence_deg : float
+    confirm_incidence_deg : float or None
         A new two-view point that no camera could be searched for with its fitted normal (all
         beyond ``max_incidence_deg``, or no usable patch) is searched once more for
         ``confirm_new``, with the plane facing the bisector of the reference and the searched
@@ -132,10 +132,14 @@ class ViewsConfig:
         the surface at the median (46 % more than 15 mm) against 5 mm for three views: the
         points that no third camera checks carry the 3D error's tail
         (``docs/reconstruction.md``, "New two-view points that no camera could check").
-        The tracker leaves it off, with a warning, where the search cannot judge a point: its
-        image tolerance ``sigma_px`` is above ``patch_spacing_px`` and ``search_sigmas`` is
-        under 1 (a rig calibrated to a few pixels, as the Pose2Sim demo's).
-        0 turns it off.
+        None (the default) lets the tracker choose from the rig
+        (:func:`~pointtraj.reconstruct.track.confirm_facing`): 89 degrees on rigs of
+        :data:`CONFIRM_MIN_CAMERAS` cameras or more whose image tolerance ``sigma_px`` is at
+        most ``patch_spacing_px`` (or ``search_sigmas`` at least 1); off, said in a warning,
+        elsewhere. On 4 cameras the other cameras of a two-view point see it at a grazing
+        angle, where the search misses right points (the caliscope board's torso lost 37 %
+        of its trajectories), and a rig calibrated to a few pixels puts a right point off
+        its epipolar line (the Pose2Sim demo). 0 turns it off; a number is used as set.
     drop_grazing : bool
         After the search, a tracked or new point drops the views it observes beyond
         ``max_incidence_deg`` to its fitted normal, where it keeps at least 3 views
@@ -184,7 +188,7 @@ class ViewsConfig:
     max_retry_every: int = 0
     search_sigmas: float = 0.0
     confirm_new: bool = True
-    confirm_incidence_deg: float = 89.0
+    confirm_incidence_deg: float | None = None
     drop_grazing: bool = True
     refute_min_fails: int = 8
     refute_fail_ratio: float = 4.0
@@ -205,7 +209,8 @@ class ViewsConfig:
             "min_depth_range_m": self.min_depth_range_m > 0,
             "max_depth_range_m": self.max_depth_range_m >= self.min_depth_range_m,
             "max_incidence_deg": 0 < self.max_incidence_deg <= 90,
-            "confirm_incidence_deg": 0 <= self.confirm_incidence_deg <= 90,
+            "confirm_incidence_deg": self.confirm_incidence_deg is None
+            or 0 <= self.confirm_incidence_deg <= 90,
             "normal_neighbors": self.normal_neighbors >= 3,
             "retry_every": self.retry_every >= 0,
             "max_retry_every": self.max_retry_every >= 0,
@@ -266,6 +271,15 @@ def point_normals(
     normals[bad] = facing[bad]
     return normals
 
+
+#: ``ViewsConfig.confirm_incidence_deg`` where the rig chooses it: the cameras within this
+#: angle of a new two-view point's observing cameras' mean direction are searched again.
+CONFIRM_INCIDENCE_DEG = 89.0
+
+#: The fewest cameras on which the tracker searches new two-view points again facing their
+#: cameras, where ``confirm_incidence_deg`` is left to the rig: on 4 cameras the other cameras
+#: of a two-view point see it at a grazing angle, where the search misses right points.
+CONFIRM_MIN_CAMERAS = 6
 
 #: Failed searches in a row counted per (point, camera) at most (the back-off stops doubling).
 MAX_MISSES = 8
@@ -538,7 +552,8 @@ def discover_views(
     confirm : (N,) bool ndarray, optional
         Points to confirm (the tracker's new ones): those observed in two cameras that no
         camera could be searched for are searched once more facing their cameras
-        (``config.confirm_incidence_deg``), so that ``confirm_new`` can judge them.
+        (within ``config.confirm_incidence_deg``, :data:`CONFIRM_INCIDENCE_DEG` where that is
+        None), so that ``confirm_new`` can judge them.
 
     Returns
     -------
@@ -556,7 +571,9 @@ def discover_views(
     pix = check_array("pixels", pixels, (C, N, 2)).astype(np.float64)
     cand = check_array("candidates", candidates, (C, N), dtype=bool)
     out, searched = _search(rig, images, X, pix, cand, cfg, sigma_px)
-    if confirm is None or cfg.confirm_incidence_deg <= 0:
+    facing_deg = cfg.confirm_incidence_deg
+    facing_deg = CONFIRM_INCIDENCE_DEG if facing_deg is None else facing_deg
+    if confirm is None or facing_deg <= 0:
         return out, searched
     observed = finite_rows(pix)  # (C, N)
     again = (
@@ -567,7 +584,7 @@ def discover_views(
     )
     if again.any():
         idx = np.flatnonzero(again)
-        facing = replace(cfg, normal="bisector", max_incidence_deg=cfg.confirm_incidence_deg)
+        facing = replace(cfg, normal="bisector", max_incidence_deg=facing_deg)
         out[:, idx], searched[:, idx] = _search(
             rig, images, X[idx], pix[:, idx], cand[:, idx], facing, sigma_px
         )
