@@ -60,7 +60,6 @@ def main() -> None:
 
     from pointtraj.reconstruct.config import ReconstructConfig, rig_choices
     from pointtraj.reconstruct.connectivity import build_connectivity, common_view
-    from pointtraj.reconstruct.track import confirm_facing
     from pointtraj.rigio import load_rig
     from pointtraj.synth.presets import make_rig
 
@@ -88,7 +87,7 @@ def main() -> None:
             f"{'on' if c.guided else 'off'}, GMS {c.gms_threshold:g}, densify "
             f"{f'on at NCC {c.densify_ncc:g} from {c.densify_seeds}' if c.densify else 'off'}, "
             f"new two-view points confirmed facing their cameras "
-            f"{'on' if confirm_facing(cfg, len(rig)) else 'off'} "
+            f"{'on' if cfg.for_rig(rig, log=False).views.confirm_incidence_deg else 'off'} "
             f"({c.megapixels:.2f} MP, nearest partner {c.nearest_deg:.1f} deg) |"
         )
 

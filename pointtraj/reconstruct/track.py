@@ -326,49 +326,6 @@ def occlusion_tolerance(
 # -- the tracker ------------------------------------------------------------------------------
 
 
-def confirm_facing(cfg: ReconstructConfig, num_cameras: int, *, log: bool = False) -> bool:
-    """Whether new two-view points are searched again facing their cameras
-    (``[reconstruct.views] confirm_incidence_deg``; :func:`~.views.discover_views`).
-
-    A set angle is used as set (0: off). Left out (None), the rig decides: on where it has
-    :data:`~.views.CONFIRM_MIN_CAMERAS` cameras or more and the search can judge a point,
-    off elsewhere, and said in a warning when ``log`` is set.
-
-    - On 4 cameras the other cameras of a two-view point see it at a grazing angle, where
-      the search misses right points: on the caliscope board (4 webcams) it took the torso's
-      labelled trajectories from 447 to 283 and the head's from 49 to 13.
-    - The search finds a view only within about the patch spacing of its epipolar line;
-      where the images' tolerance ``sigma_px`` is larger (a rig calibrated to a few pixels)
-      and the search does not reach across the line (``search_sigmas`` under 1), it misses
-      right points as often as wrong ones: on the Pose2Sim demo (``sigma_px`` 6) it lowered
-      the labelled body points with three views from 4.1 to 3.4 % and the nearest-part
-      agreement from 81.2 to 79.7 %.
-    """
-    from .views import CONFIRM_MIN_CAMERAS
-
-    v = cfg.views
-    if not (v.enabled and v.confirm_new):
-        return False
-    if v.confirm_incidence_deg is not None:
-        return v.confirm_incidence_deg > 0
-    why = []
-    if num_cameras < CONFIRM_MIN_CAMERAS:
-        why.append(f"the rig has {num_cameras} cameras (fewer than {CONFIRM_MIN_CAMERAS})")
-    if cfg.sigma_px > v.patch_spacing_px and v.search_sigmas < 1:
-        why.append(
-            f"sigma_px = {cfg.sigma_px:.3g} is above the patch spacing of view discovery "
-            f"({v.patch_spacing_px:.3g} px) and the search does not reach across the epipolar "
-            f"line (search_sigmas = {v.search_sigmas:.3g})"
-        )
-    if why and log:
-        logger.warning(
-            "new two-view points are not searched again facing their cameras "
-            "([reconstruct.views] confirm_incidence_deg, from the rig): %s",
-            "; ".join(why),
-        )
-    return not why
-
-
 def effective_fb_skip(cfg: ReconstructConfig, *, log: bool = False) -> int:
     """The camera count from which tracked points skip the backward flow check (0: none skip).
 
@@ -463,7 +420,6 @@ class Tracker:
                 self.config.densify.max_angle_deg,
             )
         self._fb_skip = effective_fb_skip(self.config, log=True)
-        self._confirm_facing = confirm_facing(self.config, len(rig), log=True)
         lonely = [rig.names[c] for c in range(len(rig)) if not np.isin(c, self.edges).any()]
         if lonely and len(rig) > 1:
             logger.warning(
@@ -816,7 +772,8 @@ class Tracker:
             one_view = finite_rows(pix[:, :n_old]).sum(axis=0) < 2
             due[:, :n_old] |= one_view[None, :]
         # new two-view points that no camera could be searched for are searched again
-        confirm = np.arange(N) >= n_old if self._confirm_facing else None
+        v = cfg.views
+        confirm = np.arange(N) >= n_old if v.confirm_new and v.confirm_incidence_deg else None
         grown, searched = discover_views(
             self.rig,
             images,

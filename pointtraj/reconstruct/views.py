@@ -132,8 +132,8 @@ class ViewsConfig:
         the surface at the median (46 % more than 15 mm) against 5 mm for three views: the
         points that no third camera checks carry the 3D error's tail
         (``docs/reconstruction.md``, "New two-view points that no camera could check").
-        None (the default) lets the tracker choose from the rig
-        (:func:`~pointtraj.reconstruct.track.confirm_facing`): 89 degrees on rigs of
+        None (the default) lets the rig choose (``ReconstructConfig.for_rig``,
+        :func:`~pointtraj.reconstruct.config.confirm_off_reasons`): 89 degrees on rigs of
         :data:`CONFIRM_MIN_CAMERAS` cameras or more whose image tolerance ``sigma_px`` is at
         most ``patch_spacing_px`` (or ``search_sigmas`` at least 1); off, said in a warning,
         elsewhere. On 4 cameras the other cameras of a two-view point see it at a grazing

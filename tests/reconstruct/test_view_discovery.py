@@ -18,7 +18,7 @@ from pointtraj.reconstruct.config import ReconstructConfig
 from pointtraj.reconstruct.densify import prepare_images
 from pointtraj.reconstruct.flow import expand_views
 from pointtraj.reconstruct.matching import MatchingConfig
-from pointtraj.reconstruct.track import Tracker, confirm_facing
+from pointtraj.reconstruct.track import Tracker
 from pointtraj.reconstruct.views import ViewsConfig, depth_uncertainty, discover_views
 
 
@@ -148,25 +148,32 @@ def test_new_two_view_points_are_searched_again_facing_their_cameras():
 
 def test_confirm_facing_is_chosen_from_the_rig(caplog):
     """Left out, the confirmation search runs on rigs of 6 cameras and more whose tolerance
-    the search can judge, and says why where it does not; a set angle is used as set."""
+    the search can judge, and a warning says why where it does not; a set angle is kept."""
+    from pointtraj.synth.presets import make_rig
+
     cfg = ReconstructConfig()
     assert cfg.views.confirm_incidence_deg is None
-    assert confirm_facing(cfg, 8) and confirm_facing(cfg, 69)
-    with caplog.at_level(logging.WARNING, logger="pointtraj.reconstruct.track"):
-        assert not confirm_facing(cfg, 4, log=True)
+
+    def angle(c: ReconstructConfig, preset: str) -> float:
+        return c.for_rig(make_rig(preset)).views.confirm_incidence_deg
+
+    with caplog.at_level(logging.INFO, logger="pointtraj.reconstruct.config"):
+        assert angle(cfg, "ring8") == 89.0 and angle(cfg, "paper69") == 89.0
+    assert "searched again facing their cameras within 89 deg (from the rig)" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="pointtraj.reconstruct.config"):
+        assert angle(cfg, "lab4") == 0.0
     assert "4 cameras" in caplog.text and "confirm_incidence_deg" in caplog.text
     loose = dataclasses.replace(cfg, sigma_px=6.0)  # the Pose2Sim demo's
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="pointtraj.reconstruct.track"):
-        assert not confirm_facing(loose, 8, log=True)
+    with caplog.at_level(logging.WARNING, logger="pointtraj.reconstruct.config"):
+        assert angle(loose, "ring8") == 0.0
     assert "sigma_px = 6" in caplog.text
     across = dataclasses.replace(loose.views, search_sigmas=2.0)
-    assert confirm_facing(dataclasses.replace(loose, views=across), 8)
-    for deg, on in ((89.0, True), (0.0, False)):
+    assert angle(dataclasses.replace(loose, views=across), "ring8") == 89.0
+    for deg in (60.0, 0.0):  # set: kept, on any rig
         views = dataclasses.replace(cfg.views, confirm_incidence_deg=deg)
-        assert confirm_facing(dataclasses.replace(cfg, views=views), 4) is on
-    no_confirm = dataclasses.replace(cfg.views, confirm_new=False)
-    assert not confirm_facing(dataclasses.replace(cfg, views=no_confirm), 8)
+        assert angle(dataclasses.replace(cfg, views=views), "lab4") == deg
     with pytest.raises(ValidationError):
         ViewsConfig(confirm_incidence_deg=95.0)
 
