@@ -276,9 +276,10 @@ def point_normals(
 #: angle of a new two-view point's observing cameras' mean direction are searched again.
 CONFIRM_INCIDENCE_DEG = 89.0
 
-#: The fewest cameras on which the tracker searches new two-view points again facing their
-#: cameras, where ``confirm_incidence_deg`` is left to the rig: on 4 cameras the other cameras
-#: of a two-view point see it at a grazing angle, where the search misses right points.
+#: The fewest cameras on which new two-view points are searched again facing their cameras,
+#: where ``confirm_incidence_deg`` is left to the rig (``ReconstructConfig.for_rig``): on 4
+#: cameras the other cameras of a two-view point see it at a grazing angle, where the search
+#: misses right points.
 CONFIRM_MIN_CAMERAS = 6
 
 #: Failed searches in a row counted per (point, camera) at most (the back-off stops doubling).
