@@ -423,9 +423,9 @@ class ReconstructConfig:
         if match_every is None:
             match_every = MATCH_EVERY_COVER if cover == "on" else 1
         v = cfg.views
-        confirm = v.confirm_incidence_deg
-        unconfirmed = confirm_off_reasons(cfg, len(rig)) if confirm is None else []
+        confirm, unconfirmed = v.confirm_incidence_deg, []
         if confirm is None:
+            unconfirmed = confirm_off_reasons(cfg, len(rig))
             confirm = 0.0 if unconfirmed else CONFIRM_INCIDENCE_DEG
         if log and unconfirmed and v.enabled and v.confirm_new:
             logger.warning(

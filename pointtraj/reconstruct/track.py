@@ -772,8 +772,7 @@ class Tracker:
             one_view = finite_rows(pix[:, :n_old]).sum(axis=0) < 2
             due[:, :n_old] |= one_view[None, :]
         # new two-view points that no camera could be searched for are searched again
-        v = cfg.views
-        confirm = np.arange(N) >= n_old if v.confirm_new and v.confirm_incidence_deg else None
+        confirm = np.arange(N) >= n_old if cfg.views.confirm_new else None
         grown, searched = discover_views(
             self.rig,
             images,

@@ -146,7 +146,7 @@ def test_new_two_view_points_are_searched_again_facing_their_cameras():
     assert not searched[2].any()
 
 
-def test_confirm_facing_is_chosen_from_the_rig(caplog):
+def test_confirm_incidence_is_chosen_from_the_rig(caplog):
     """Left out, the confirmation search runs on rigs of 6 cameras and more whose tolerance
     the search can judge, and a warning says why where it does not; a set angle is kept."""
     from pointtraj.synth.presets import make_rig
