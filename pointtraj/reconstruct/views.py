@@ -135,11 +135,14 @@ class ViewsConfig:
         None (the default) lets the rig choose (``ReconstructConfig.for_rig``,
         :func:`~pointtraj.reconstruct.config.confirm_off_reasons`): 89 degrees on rigs of
         :data:`CONFIRM_MIN_CAMERAS` cameras or more whose image tolerance ``sigma_px`` is at
-        most ``patch_spacing_px`` (or ``search_sigmas`` at least 1); off, said in a warning,
-        elsewhere. On 4 cameras the other cameras of a two-view point see it at a grazing
-        angle, where the search misses right points (the caliscope board's torso lost 37 %
-        of its trajectories), and a rig calibrated to a few pixels puts a right point off
-        its epipolar line (the Pose2Sim demo). 0 turns it off; a number is used as set.
+        most ``patch_spacing_px`` (or ``search_sigmas`` at least 1), and whose neighbours are
+        close enough that a third camera sees a pair's surface within ``max_incidence_deg``
+        (:data:`CONFIRM_THIRD_FACTOR` times the median nearest-partner angle); off, said in a
+        warning, elsewhere. On 4 cameras the other cameras of a two-view point see it at a
+        grazing angle, where the search misses right points (the caliscope board's torso lost
+        37 % of its trajectories), on six cameras 60 degrees apart it adds grazing views, and a
+        rig calibrated to a few pixels puts a right point off its epipolar line (the Pose2Sim
+        demo). 0 turns it off; a number is used as set.
     drop_grazing : bool
         After the search, a tracked or new point drops the views it observes beyond
         ``max_incidence_deg`` to its fitted normal, where it keeps at least 3 views
@@ -281,6 +284,14 @@ CONFIRM_INCIDENCE_DEG = 89.0
 #: cameras the other cameras of a two-view point see it at a grazing angle, where the search
 #: misses right points.
 CONFIRM_MIN_CAMERAS = 6
+
+#: Where ``confirm_incidence_deg`` is left to the rig, the search runs only where a third camera
+#: can see a pair's surface within ``max_incidence_deg``: on a ring whose neighbours are ``a``
+#: degrees apart (the median nearest partner), a pair's mean direction is ``a / 2`` from each of
+#: its cameras and the next camera lies ``1.5 a`` from it. On six cameras 60 degrees apart
+#: (89.6 > 80) the search added grazing views: view precision 0.754 -> 0.722, three-view points'
+#: 3D error p90 17.4 -> 22.0 mm (``docs/reconstruction.md``, "Six cameras 60 degrees apart").
+CONFIRM_THIRD_FACTOR = 1.5
 
 #: Failed searches in a row counted per (point, camera) at most (the back-off stops doubling).
 MAX_MISSES = 8

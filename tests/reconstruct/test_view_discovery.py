@@ -148,8 +148,10 @@ def test_new_two_view_points_are_searched_again_facing_their_cameras():
 
 def test_confirm_incidence_is_chosen_from_the_rig(caplog):
     """Left out, the confirmation search runs on rigs of 6 cameras and more whose tolerance
-    the search can judge, and a warning says why where it does not; a set angle is kept."""
-    from pointtraj.synth.presets import make_rig
+    the search can judge and whose third cameras see a pair's surface within
+    max_incidence_deg, and a warning says why where it does not; a set angle is kept."""
+    from pointtraj.camera import CameraRig
+    from pointtraj.synth.presets import make_rig, ring_cameras
 
     cfg = ReconstructConfig()
     assert cfg.views.confirm_incidence_deg is None
@@ -169,6 +171,14 @@ def test_confirm_incidence_is_chosen_from_the_rig(caplog):
     with caplog.at_level(logging.WARNING, logger="pointtraj.reconstruct.config"):
         assert angle(loose, "ring8") == 0.0
     assert "sigma_px = 6" in caplog.text
+    # six cameras 60 degrees apart: a pair's third camera sees its surface at about 90 degrees
+    ring6 = CameraRig(ring_cameras(6, 2.6, [1.2, 1.9], (0.0, 0.0, 0.9), (960, 720), 560.0))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="pointtraj.reconstruct.config"):
+        assert cfg.for_rig(ring6).views.confirm_incidence_deg == 0.0
+    assert "60 deg apart" in caplog.text and "max_incidence_deg = 80" in caplog.text
+    wide = dataclasses.replace(cfg.views, max_incidence_deg=90.0)  # the third camera in reach
+    assert dataclasses.replace(cfg, views=wide).for_rig(ring6).views.confirm_incidence_deg == 89
     across = dataclasses.replace(loose.views, search_sigmas=2.0)
     assert angle(dataclasses.replace(loose, views=across), "ring8") == 89.0
     for deg in (60.0, 0.0):  # set: kept, on any rig
