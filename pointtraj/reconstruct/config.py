@@ -549,7 +549,7 @@ LARGE_IMAGE_MP = 0.6
 #: Megapixels (median image) from which images below :data:`LARGE_IMAGE_MP` are densified
 #: where the cameras are close enough (:data:`DENSIFY_PARTNER_DEG`): the demo's 640x512 (0.33 MP)
 #: and ring12's 800x640 (0.51). Below it (tiny4's and paper69q's 320x256, 0.08 MP) a 7 x 7
-#: patch 2 px apart spans a limb, and densification at :data:`MEDIUM_IMAGE_NCC` added wrong
+#: patch 2 px apart spans a limb, and densification at :data:`DENSIFY_NCC` added wrong
 #: points on tiny4 (3D error 28 to 43 mm median; ``docs/reconstruction.md``, "Densification on
 #: medium images").
 MEDIUM_IMAGE_MP = 0.25
@@ -557,13 +557,18 @@ MEDIUM_IMAGE_MP = 0.25
 #: (ring8: 43.8, ring12: 34.7; tiny4's 87.1 is where it was measured to hurt). Placed between
 #: the rigs measured, not measured at the threshold.
 DENSIFY_PARTNER_DEG = 60.0
-#: Densification's ``min_ncc`` on large images (their patches are sharp), and wherever the
-#: images are not medium (:data:`MEDIUM_IMAGE_MP`).
-LARGE_IMAGE_NCC = 0.9
-#: Densification's ``min_ncc`` on medium images: rendered and real textures are softer at that
-#: resolution and a right match peaks lower (at 0.9 densification added 10 % to the demo's
-#: points, at 0.8 50 %, with a lower 3D error and a higher view precision).
-MEDIUM_IMAGE_NCC = 0.8
+#: Densification's ``min_ncc`` on a dense rig (:data:`DENSE_RIG_CAMERAS` cameras, nearest
+#: partners within :data:`CLOSE_PARTNER_DEG`): a patch looks alike from cameras 10 degrees
+#: apart (paper69), and the threshold keeps out wrong points where there are thousands a frame.
+DENSE_RIG_NCC = 0.9
+#: Densification's ``min_ncc`` elsewhere: seen from cameras 35-60 degrees apart, or at the
+#: demo's resolution, a right match peaks lower. At 0.9 densification added 10 % to the
+#: demo's points, at 0.8 50 %, with a lower 3D error and a higher view precision; on 8 cameras
+#: 44 degrees apart at 1280x1024 (frames 0-9), 0.8 and every point as seed gave 2.1 times the
+#: actor point-frames of 0.9 from moving points, view recall 0.836 against 0.828 and
+#: precision 0.949 against 0.931; on 6 cameras 60 degrees apart at 960x720 and 1920x1440,
+#: 2.7 and 3.0 times (``docs/reconstruction.md``, "Densification on rigs that are not dense").
+DENSIFY_NCC = 0.8
 #: Median angle (degrees) between each camera's axis and its nearest partner's at or below
 #: which a rig of at least :data:`DENSE_RIG_CAMERAS` cameras is dense: other close views then
 #: reject guided matching's wrong matches (paper69: 10.3; the demo's ring: 43.8).
@@ -614,13 +619,16 @@ def rig_choices(rig: CameraRig) -> RigChoice:
     - Large images (the median image at least :data:`LARGE_IMAGE_MP` megapixels, where the
       default 12,000 features are sparse): guided matching and densification on. On paper69
       (1280x1024) they give 2.8 times the points on the actors at a lower error; on Pose2Sim's
-      and caliscope's webcams the defaults found 0-152 matches a frame.
+      and caliscope's webcams the defaults found 0-152 matches a frame. Densification runs at
+      NCC :data:`DENSE_RIG_NCC` from the new matches and moving points (``seeds =
+      "moving"``) on a dense rig, whose static surfaces thousands of points already cover,
+      and at :data:`DENSIFY_NCC` from every point on the others.
     - A dense rig (at least :data:`DENSE_RIG_CAMERAS` cameras, each camera's nearest axis
       within :data:`CLOSE_PARTNER_DEG`, median): guided matching on (paper69: more points,
       lower errors than brute force; it is what ``paper69q``'s small images get).
     - Medium images (:data:`MEDIUM_IMAGE_MP` to :data:`LARGE_IMAGE_MP`) on a rig whose
       cameras' nearest partners lie within :data:`DENSIFY_PARTNER_DEG` (the demo's 8 cameras
-      44 degrees apart at 640x512, ring12): densification on, at NCC :data:`MEDIUM_IMAGE_NCC`
+      44 degrees apart at 640x512, ring12): densification on, at NCC :data:`DENSIFY_NCC`
       and growing from every point (``seeds = "all"``; the image bounds what it can add). On
       the demo it gave 50 % more points, a lower 3D error and a higher view precision.
     - Guided matching stays off elsewhere (the demo), where it lets wrong matches on repeated
@@ -664,8 +672,8 @@ def rig_choices(rig: CameraRig) -> RigChoice:
         guided=sparse or close,
         gms_threshold=LENIENT_GMS if (sparse and few) else GMS_THRESHOLD,
         densify=sparse or medium,
-        densify_ncc=MEDIUM_IMAGE_NCC if medium else LARGE_IMAGE_NCC,
-        densify_seeds="all" if medium else "moving",
+        densify_ncc=DENSE_RIG_NCC if close else DENSIFY_NCC,
+        densify_seeds="moving" if close else "all",
         megapixels=mp,
         nearest_deg=nearest,
         reason=reason,

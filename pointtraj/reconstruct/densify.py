@@ -78,8 +78,9 @@ class DensifyConfig:
     min_ncc : float or None
         Mean NCC a candidate needs at its best depth; also what a partner view needs to observe
         the new point. None (the default, the key left out): chosen from the rig
-        (:func:`~.config.rig_choices`): 0.8 on medium images (0.25-0.6 megapixels, close
-        cameras), whose textures are softer, 0.9 elsewhere.
+        (:func:`~.config.rig_choices`): 0.9 on a dense rig (16 cameras or more, nearest
+        partners within 25 degrees), whose patches look alike from one camera to the next,
+        0.8 elsewhere, where a right match peaks lower.
     min_margin : float
         The best mean NCC must exceed every score more than ``peak_width`` steps from the best
         depth by this much.
@@ -110,8 +111,8 @@ class DensifyConfig:
         At most this many new points per frame (bounds the cost).
     seeds : {"moving", "new", "all"} or None
         Which of the frame's points densification grows from; None (the default, the key left
-        out): chosen from the rig (:func:`~.config.rig_choices`): ``"all"`` on medium images, where
-        the image bounds what it can add, ``"moving"`` elsewhere. ``"new"``: the points that
+        out): chosen from the rig (:func:`~.config.rig_choices`): ``"moving"`` on a dense rig,
+        whose static surfaces thousands of points already cover, ``"all"`` elsewhere. ``"new"``: the points that
         matching found at this frame (at a capture's first frame, all of them), so that it fills
         around matched texture and stops there. ``"moving"``: those and the tracked points whose
         image moved by more than ``seed_motion_px`` since the previous frame in the cameras
