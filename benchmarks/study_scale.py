@@ -32,7 +32,7 @@ def study(work: str, frames: list[int] | None = None) -> list[str]:
     from pointtraj.evaluate.groundtruth import frame_surface_errors
     from pointtraj.session import Capture
     from pointtraj.synth.groundtruth import capture_scale
-    from pointtraj.synth.presets import PRESETS
+    from pointtraj.synth.presets import PRESETS, axes_meeting_point
     from pointtraj.trajectories import Trajectories
     from pointtraj.workdir import WorkFolder
 
@@ -40,7 +40,9 @@ def study(work: str, frames: list[int] | None = None) -> list[str]:
     cap = wf.require_capture()
     rig = Capture.open(cap).rig
     s = capture_scale(cap)
-    target = np.asarray(PRESETS[str(load_toml(cap / "gt" / "synth.toml")["preset"])].target)
+    preset = str(load_toml(cap / "gt" / "synth.toml")["preset"])
+    # a twin of a rig file (``pointtraj synth --rig``) looks where its cameras' axes meet
+    target = np.asarray(PRESETS[preset].target if preset in PRESETS else axes_meeting_point(rig))
     foot = float(np.median(np.linalg.norm(rig.C - target, axis=1) / rig.K[:, 0, 0]))
     tr = Trajectories.load(wf.trajectories)
     per_frame = np.array([len(tr.frame_rows(t)) for t in range(tr.num_frames)])

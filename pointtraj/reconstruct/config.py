@@ -563,11 +563,11 @@ DENSIFY_PARTNER_DEG = 60.0
 DENSE_RIG_NCC = 0.9
 #: Densification's ``min_ncc`` elsewhere: seen from cameras 35-60 degrees apart, or at the
 #: demo's resolution, a right match peaks lower. At 0.9 densification added 10 % to the
-#: demo's points, at 0.8 50 %, with a lower 3D error and a higher view precision; on 8 cameras
-#: 44 degrees apart at 1280x1024 (frames 0-9), 0.8 and every point as seed gave 2.1 times the
-#: actor point-frames of 0.9 from moving points, view recall 0.836 against 0.828 and
-#: precision 0.949 against 0.931; on 6 cameras 60 degrees apart at 960x720 and 1920x1440,
-#: 2.7 and 3.0 times (``docs/reconstruction.md``, "Densification on rigs that are not dense").
+#: demo's points, at 0.8 50 %, with a lower 3D error and a higher view precision. On large
+#: images from moving points (frames 0-9), 0.8 gave 1.6 times the actor point-frames of 0.9
+#: on 8 cameras 44 degrees apart at 1280x1024 (view precision 0.945 against 0.931) and 1.4
+#: times on lab4 (0.938 both) (``docs/reconstruction.md``, "Densification on rigs that are
+#: not dense").
 DENSIFY_NCC = 0.8
 #: Median angle (degrees) between each camera's axis and its nearest partner's at or below
 #: which a rig of at least :data:`DENSE_RIG_CAMERAS` cameras is dense: other close views then
@@ -619,10 +619,9 @@ def rig_choices(rig: CameraRig) -> RigChoice:
     - Large images (the median image at least :data:`LARGE_IMAGE_MP` megapixels, where the
       default 12,000 features are sparse): guided matching and densification on. On paper69
       (1280x1024) they give 2.8 times the points on the actors at a lower error; on Pose2Sim's
-      and caliscope's webcams the defaults found 0-152 matches a frame. Densification runs at
-      NCC :data:`DENSE_RIG_NCC` from the new matches and moving points (``seeds =
-      "moving"``) on a dense rig, whose static surfaces thousands of points already cover,
-      and at :data:`DENSIFY_NCC` from every point on the others.
+      and caliscope's webcams the defaults found 0-152 matches a frame. Densification grows
+      from the new matches and moving points (``seeds = "moving"``), at NCC
+      :data:`DENSE_RIG_NCC` on a dense rig and :data:`DENSIFY_NCC` on the others.
     - A dense rig (at least :data:`DENSE_RIG_CAMERAS` cameras, each camera's nearest axis
       within :data:`CLOSE_PARTNER_DEG`, median): guided matching on (paper69: more points,
       lower errors than brute force; it is what ``paper69q``'s small images get).
@@ -673,7 +672,7 @@ def rig_choices(rig: CameraRig) -> RigChoice:
         gms_threshold=LENIENT_GMS if (sparse and few) else GMS_THRESHOLD,
         densify=sparse or medium,
         densify_ncc=DENSE_RIG_NCC if close else DENSIFY_NCC,
-        densify_seeds="moving" if close else "all",
+        densify_seeds="all" if medium else "moving",
         megapixels=mp,
         nearest_deg=nearest,
         reason=reason,

@@ -111,8 +111,8 @@ class DensifyConfig:
         At most this many new points per frame (bounds the cost).
     seeds : {"moving", "new", "all"} or None
         Which of the frame's points densification grows from; None (the default, the key left
-        out): chosen from the rig (:func:`~.config.rig_choices`): ``"moving"`` on a dense rig,
-        whose static surfaces thousands of points already cover, ``"all"`` elsewhere. ``"new"``: the points that
+        out): chosen from the rig (:func:`~.config.rig_choices`): ``"all"`` on medium images, where
+        the image bounds what it can add, ``"moving"`` elsewhere. ``"new"``: the points that
         matching found at this frame (at a capture's first frame, all of them), so that it fills
         around matched texture and stops there. ``"moving"``: those and the tracked points whose
         image moved by more than ``seed_motion_px`` since the previous frame in the cameras
