@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pointtraj.camera import Camera, CameraRig
 from pointtraj.errors import FileFormatError, ValidationError
 from pointtraj.reconstruct.config import ReconstructConfig, rig_choices
 from pointtraj.reconstruct.densify import DensifyConfig
@@ -85,6 +86,18 @@ def test_rig_choices_figures():
     assert c.megapixels == pytest.approx(1.31072)
     assert c.nearest_deg == pytest.approx(10.3, abs=0.1)
     assert "1.31 MP images (large" in c.reason
+    # Two pairs of cameras facing each other (Pose2Sim's demo): a pair's densified points have
+    # no third camera to check them, so densification keeps the strict threshold.
+    facing = CameraRig(
+        [
+            Camera.look_at(f"cam{i}", (3.0 * np.cos(a), 3.0 * np.sin(a), 1.5), (0, 0, 0.9),
+                           (1920, 1080), 1500.0)
+            for i, a in enumerate(np.radians([-25.0, 25.0, 145.0, 215.0]))
+        ]
+    )  # fmt: skip
+    c = rig_choices(facing)
+    assert c.densify and c.densify_ncc == 0.9 and "1 partners within 90 deg" in c.reason
+    assert rig_choices(make_rig("lab4")).densify_ncc == 0.8  # 2.5 partners within 90 deg
     # A smaller feature budget (for speed) does not switch the matching mode.
     small = ReconstructConfig(matching=MatchingConfig(num_features=400))
     assert small.for_rig(make_rig("ring8")).matching.guided is False
