@@ -675,10 +675,10 @@ def rig_choices(rig: CameraRig) -> RigChoice:
     )
     reason = (
         f"{C} cameras, {mp:.2f} MP images ({size}), nearest partner {nearest:.1f} deg, "
-        f"{partners:g} partners within 90 deg (medians; a dense rig: <= "
+        f"{partners:g} within 90 deg (medians; a dense rig: <= "
         f"{CLOSE_PARTNER_DEG:.0f} on >= {DENSE_RIG_CAMERAS} cameras; medium images densified "
-        f"up to {DENSIFY_PARTNER_DEG:.0f}; densified points checked from {CHECKING_PARTNERS} "
-        f"partners)"
+        f"up to {DENSIFY_PARTNER_DEG:.0f}; densification at NCC {DENSIFY_NCC:g} with >= "
+        f"{CHECKING_PARTNERS} within 90)"
     )
     return RigChoice(
         guided=sparse or close,

@@ -80,7 +80,8 @@ class DensifyConfig:
         the new point. None (the default, the key left out): chosen from the rig
         (:func:`~.config.rig_choices`): 0.9 on a dense rig (16 cameras or more, nearest
         partners within 25 degrees), whose patches look alike from one camera to the next,
-        0.8 elsewhere, where a right match peaks lower.
+        and where cameras have fewer than 2 others within 90 degrees (nothing checks a pair's
+        points); 0.8 elsewhere, where a right match peaks lower.
     min_margin : float
         The best mean NCC must exceed every score more than ``peak_width`` steps from the best
         depth by this much.

@@ -290,7 +290,8 @@ CONFIRM_MIN_CAMERAS = 6
 #: degrees apart (the median nearest partner), a pair's mean direction is ``a / 2`` from each of
 #: its cameras and the next camera lies ``1.5 a`` from it. On six cameras 60 degrees apart
 #: (89.6 > 80) the search added grazing views: view precision 0.754 -> 0.722, three-view points'
-#: 3D error p90 17.4 -> 22.0 mm (``docs/reconstruction.md``, "Six cameras 60 degrees apart").
+#: 3D error p90 17.4 -> 22.0 mm (``docs/reconstruction.md``, "New two-view points that no
+#: camera could check", the rigs that no rule was tuned on).
 CONFIRM_THIRD_FACTOR = 1.5
 
 #: Failed searches in a row counted per (point, camera) at most (the back-off stops doubling).

@@ -96,7 +96,7 @@ def test_rig_choices_figures():
         ]
     )  # fmt: skip
     c = rig_choices(facing)
-    assert c.densify and c.densify_ncc == 0.9 and "1 partners within 90 deg" in c.reason
+    assert c.densify and c.densify_ncc == 0.9 and "1 within 90 deg" in c.reason
     assert rig_choices(make_rig("lab4")).densify_ncc == 0.8  # 2.5 partners within 90 deg
     # A smaller feature budget (for speed) does not switch the matching mode.
     small = ReconstructConfig(matching=MatchingConfig(num_features=400))
