@@ -88,7 +88,9 @@ def test_densify_works_in_distorted_images(wide_plane):
     # off-centre seeds, where the distortion moves pixels by about 4 px
     X, _ = seeds(rig_d, 24, x=(-0.6, 0.6), y=(0.5, 0.7))
     pix = rig_d.project(X).pixels
-    obs = densify(rig_d, prepare_images(rig_d, images), X, pix, pix, DensifyConfig(rounds=2))
+    # NCC 0.9, the threshold the figures below were measured at (this rig's own is 0.8)
+    cfg = DensifyConfig(rounds=2, min_ncc=0.9)
+    obs = densify(rig_d, prepare_images(rig_d, images), X, pix, pix, cfg)
     # sweeping the distorted images as if they were ideal gives 409 points, p99 7.8 mm
     assert obs.shape[1] > 480
     z = np.abs(triangulate_points(rig_d, obs)[:, 2])
