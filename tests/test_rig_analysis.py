@@ -94,3 +94,11 @@ def test_rig_info_prints_the_common_view(tmp_path):
     assert res.exit_code == 0, res.output
     line = next(x for x in res.output.splitlines() if x.startswith("common view"))
     assert "seen by >= 2 cameras" in line and " mm " in line and "mm^3" in line
+    # ... and what the reconstruction's defaults choose for it, before any run
+    line = next(x for x in res.output.splitlines() if x.startswith("reconstruction: "))
+    assert "rig-derived settings: 7 cameras" in line and "min_ncc 0.8 (from the rig)" in line
+    save_rig(make_rig("lab4"), tmp_path / "lab4.toml")
+    res = CliRunner().invoke(main, ["rig", "info", str(tmp_path / "lab4.toml")])
+    assert res.exit_code == 0, res.output
+    warned = [x for x in res.output.splitlines() if x.startswith("reconstruction, warning: ")]
+    assert len(warned) == 1 and "the rig has 4 cameras (fewer than 6)" in warned[0]

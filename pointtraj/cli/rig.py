@@ -103,8 +103,42 @@ def info(path: str, voxel: float, radius: float, height: float, out: str | None)
 
         click.echo(common_view(cams).summary())
         click.echo(scene_scale(cams, log=False).summary())
+        for line in _reconstruction_choices(cams):
+            click.echo(line)
     if out is not None:
         png = Path(out) / "rig_coverage.png"
         png.parent.mkdir(parents=True, exist_ok=True)
         plot_coverage(coverage, png, cams)
         click.echo(f"wrote {png}")
+
+
+def _reconstruction_choices(cams) -> list[str]:
+    """What the reconstruction's defaults choose for this rig: the lines that
+    ``ReconstructConfig.for_rig`` logs (INFO, and a WARNING for what it leaves off), taken
+    from its logger so that there is one wording of them."""
+    import logging
+
+    from ..reconstruct.config import ReconstructConfig
+
+    records: list[logging.LogRecord] = []
+
+    class _Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append(record)
+
+    log = logging.getLogger("pointtraj.reconstruct.config")
+    handler, level, propagate = _Keep(logging.INFO), log.level, log.propagate
+    log.addHandler(handler)
+    log.setLevel(logging.INFO)
+    log.propagate = False  # shown here, not again on stderr
+    try:
+        ReconstructConfig().for_rig(cams)
+    finally:
+        log.removeHandler(handler)
+        log.setLevel(level)
+        log.propagate = propagate
+    return [
+        ("reconstruction: " if r.levelno < logging.WARNING else "reconstruction, warning: ")
+        + r.getMessage()
+        for r in records
+    ]
