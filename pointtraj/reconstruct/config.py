@@ -369,8 +369,9 @@ class ReconstructConfig:
         ``matching.guided``, ``matching.gms_threshold``, ``densify.enabled``, ``densify.min_ncc``
         and ``densify.seeds`` left out (None)
         are chosen from the rig's baselines and resolution (:func:`rig_choices`),
-        ``views.confirm_incidence_deg`` from its camera count and ``sigma_px``
-        (:func:`confirm_off_reasons`; off, with a warning, where it gives reasons),
+        ``views.confirm_incidence_deg`` from its camera count, ``sigma_px`` and its cameras'
+        nearest-partner angle (:func:`confirm_off_reasons`; off, with a warning, where it
+        gives reasons),
         ``cover_visible = "auto"`` from its camera count, and ``match_skip_px`` and
         ``match_every`` left out from ``cover_visible``; set ones are kept. The choice is
         logged at INFO, with its reasons.
@@ -471,9 +472,7 @@ class ReconstructConfig:
         )
 
 
-def confirm_off_reasons(
-    cfg: ReconstructConfig, num_cameras: int, nearest_deg: float = 0.0
-) -> list[str]:
+def confirm_off_reasons(cfg: ReconstructConfig, num_cameras: int, nearest_deg: float) -> list[str]:
     """Why the rig leaves the search of new two-view points facing their cameras off
     (``[reconstruct.views] confirm_incidence_deg`` left out; empty: it is on).
 
@@ -573,10 +572,13 @@ STRICT_DENSIFY_NCC = 0.9
 #: times on lab4 (0.938 both) (``docs/reconstruction.md``, "Densification on rigs that are
 #: not dense").
 DENSIFY_NCC = 0.8
-#: Partners within 90 degrees (the median camera's) from which a rig's densified points have
-#: other cameras to check them, and densification runs at :data:`DENSIFY_NCC` (lab4: 2.5,
-#: ring8: 4; Pose2Sim's two facing pairs: 1).
+#: Partners within :data:`CHECKING_PARTNER_DEG` (the median camera's) from which a rig's
+#: densified points have other cameras to check them, and densification runs at
+#: :data:`DENSIFY_NCC` (lab4: 2.5, ring8: 4; Pose2Sim's two facing pairs: 1).
 CHECKING_PARTNERS = 2
+#: Angle (degrees) between two cameras' axes within which one counts as the other's partner
+#: for :data:`CHECKING_PARTNERS` (densification's own ``max_angle_deg`` default).
+CHECKING_PARTNER_DEG = 90.0
 #: Median angle (degrees) between each camera's axis and its nearest partner's at or below
 #: which a rig of at least :data:`DENSE_RIG_CAMERAS` cameras is dense: other close views then
 #: reject guided matching's wrong matches (paper69: 10.3; the demo's ring: 43.8).
@@ -630,7 +632,8 @@ def rig_choices(rig: CameraRig) -> RigChoice:
       and caliscope's webcams the defaults found 0-152 matches a frame. Densification grows
       from the new matches and moving points (``seeds = "moving"``), at NCC
       :data:`DENSIFY_NCC`, or :data:`STRICT_DENSIFY_NCC` on a dense rig and where the
-      cameras have fewer than :data:`CHECKING_PARTNERS` partners within 90 degrees.
+      cameras have fewer than :data:`CHECKING_PARTNERS` partners within
+      :data:`CHECKING_PARTNER_DEG`.
     - A dense rig (at least :data:`DENSE_RIG_CAMERAS` cameras, each camera's nearest axis
       within :data:`CLOSE_PARTNER_DEG`, median): guided matching on (paper69: more points,
       lower errors than brute force; it is what ``paper69q``'s small images get).
@@ -663,7 +666,7 @@ def rig_choices(rig: CameraRig) -> RigChoice:
     sparse = mp >= LARGE_IMAGE_MP
     medium = not sparse and mp >= MEDIUM_IMAGE_MP and nearest <= DENSIFY_PARTNER_DEG
     close = nearest <= CLOSE_PARTNER_DEG and C >= DENSE_RIG_CAMERAS
-    partners = float(np.median((angles <= 90.0).sum(axis=1))) if C > 1 else 0.0
+    partners = float(np.median((angles <= CHECKING_PARTNER_DEG).sum(axis=1))) if C > 1 else 0.0
     strict = close or partners < CHECKING_PARTNERS
     few = C <= FEW_CAMERAS
     size = (
@@ -675,10 +678,10 @@ def rig_choices(rig: CameraRig) -> RigChoice:
     )
     reason = (
         f"{C} cameras, {mp:.2f} MP images ({size}), nearest partner {nearest:.1f} deg, "
-        f"{partners:g} within 90 deg (medians; a dense rig: <= "
+        f"{partners:g} within {CHECKING_PARTNER_DEG:.0f} deg (medians; a dense rig: <= "
         f"{CLOSE_PARTNER_DEG:.0f} on >= {DENSE_RIG_CAMERAS} cameras; medium images densified "
         f"up to {DENSIFY_PARTNER_DEG:.0f}; densification at NCC {DENSIFY_NCC:g} with >= "
-        f"{CHECKING_PARTNERS} within 90)"
+        f"{CHECKING_PARTNERS} within {CHECKING_PARTNER_DEG:.0f})"
     )
     return RigChoice(
         guided=sparse or close,
