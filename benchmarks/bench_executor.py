@@ -64,6 +64,9 @@ def main() -> None:
     ap.add_argument("--points-per-part", type=int, default=300)
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
+    from pointtraj.executor import keep_arrays_on_heap
+
+    keep_arrays_on_heap()  # in the serial run's process, as the command line and the workers
 
     capture = args.capture
     if capture is None:

@@ -32,7 +32,16 @@ def main() -> None:
     ap.add_argument("work", type=Path, help="emptied first")
     ap.add_argument("--config", type=Path, default=None, help="TOML with [reconstruct]")
     ap.add_argument("--frames", type=int, default=3, help="frames 0 .. N-1")
+    ap.add_argument(
+        "--glibc-malloc",
+        action="store_true",
+        help="leave glibc's malloc as it is (the command line keeps large arrays on its heap)",
+    )
     args = ap.parse_args()
+    if not args.glibc_malloc:
+        from pointtraj.executor import keep_arrays_on_heap
+
+        keep_arrays_on_heap()
 
     capture = Capture.open(args.capture)
     cfg = stages.load_reconstruct_config(args.config) if args.config else None

@@ -78,6 +78,9 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=Path("/tmp/bench_reconstruct_executor"))
     args = ap.parse_args()
+    from pointtraj.executor import keep_arrays_on_heap
+
+    keep_arrays_on_heap()  # in the serial run's process, as the command line and the workers
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("distributed").setLevel(logging.ERROR)
     logging.getLogger("pointtraj.reconstruct.stage").setLevel(logging.INFO)  # each chunk's times

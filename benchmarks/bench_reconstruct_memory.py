@@ -38,7 +38,16 @@ def main() -> None:
     ap.add_argument("--work", type=Path, required=True)
     ap.add_argument("--at", type=int, nargs=2, default=[50, 100], help="frames to compare")
     ap.add_argument("--csv", type=Path, default=None, help="per-frame figures")
+    ap.add_argument(
+        "--glibc-malloc",
+        action="store_true",
+        help="leave glibc's malloc as it is (the command line keeps large arrays on its heap)",
+    )
     args = ap.parse_args()
+    if not args.glibc_malloc:
+        from pointtraj.executor import keep_arrays_on_heap
+
+        keep_arrays_on_heap()
     logging.basicConfig(level=logging.WARNING)
 
     import psutil

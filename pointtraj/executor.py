@@ -43,8 +43,8 @@ __all__ = [
     "ExecutorConfig",
     "LazyExecutor",
     "SerialExecutor",
+    "keep_arrays_on_heap",
     "open_executor",
-    "undo_malloc_trim",
     "usable_cores",
     "worker_cache",
 ]
@@ -466,50 +466,51 @@ def _one_thread_opencv(worker: Any) -> None:
 
 
 #: glibc's ``mallopt`` parameters (``malloc.h``).
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-#: The largest mmap threshold glibc's dynamic threshold grows to on 64-bit systems
-#: (``DEFAULT_MMAP_THRESHOLD_MAX``); glibc keeps the trim threshold at twice it.
-_MMAP_THRESHOLD_MAX = 32 << 20
+_M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4
+#: Free memory at the top of the heap that glibc keeps for the next large array rather than
+#: giving it back to the OS: a few of paper69's largest per-frame temporaries.
+HEAP_TRIM_THRESHOLD = 1 << 30
 
 
-def undo_malloc_trim() -> bool:
-    """Large numpy temporaries from the heap again, in a process started with Dask's
-    ``MALLOC_TRIM_THRESHOLD_``.
+def keep_arrays_on_heap() -> bool:
+    """Large numpy arrays from glibc's heap, reused, rather than mapped afresh each time.
 
-    A Dask nanny starts its worker with ``MALLOC_TRIM_THRESHOLD_=65536`` (its
-    ``distributed.nanny.pre-spawn-environ``), so that memory goes back to the OS sooner. Setting
-    it turns off glibc's dynamic mmap threshold as well: every allocation above 128 KiB is then
-    mapped afresh and unmapped when freed, and each of numpy's large temporaries costs a page
-    fault per 4 KiB. The reconstruction of paper69 frames 0-2 took 289 CPU-s (130 of them in the
-    kernel, 35 M page faults) against 163 CPU-s (20 in the kernel, 0.8 M) without it
-    (``docs/scaling.md``). Local clusters start their workers without the variable
-    (:func:`_worker_environ`); workers started by hand (``dask worker``, dask-jobqueue) get it,
-    and this sets the thresholds that glibc's dynamic ones reach (32 MiB to map, 64 MiB to
-    trim) instead.
+    glibc maps every allocation above its mmap threshold (at most 32 MiB, lower under Dask's
+    ``MALLOC_TRIM_THRESHOLD_``) with its own ``mmap`` and unmaps it when freed, so the kernel
+    zeroes and faults in every page of each such temporary again. The tracker's (C, N) arrays
+    are far above it (69 cameras x 75,000 points: 41 MB a float64 array). This turns mapping
+    off (``M_MMAP_MAX = 0``: glibc still maps where the heap cannot grow) and keeps up to
+    :data:`HEAP_TRIM_THRESHOLD` of free memory at the heap's top. On paper69 frames 0-5 the
+    kernel's share fell from 34.5 to 7.6 CPU-s and the page faults from 1.0 M to 0.19 M, for a
+    peak RSS of 2.50 against 2.54 GB (``docs/scaling.md``, "Large arrays from the heap").
+
+    It is process-wide: the command line sets it at start, and so does every Dask worker
+    (the executor's worker plugin), which also undoes the ``MALLOC_TRIM_THRESHOLD_`` that a
+    Dask nanny gives its worker. A program that calls the library may call it once.
 
     Returns
     -------
     bool
-        Whether the thresholds were set: False where the variable is not set, or the C library
-        has no ``mallopt`` (not glibc).
+        Whether it was set: False where the C library has no ``mallopt`` (not glibc).
     """
-    if "MALLOC_TRIM_THRESHOLD_" not in os.environ:
-        return False
     import ctypes
     import ctypes.util
+    import platform
 
+    if platform.libc_ver()[0] != "glibc":
+        return False
     try:
         mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
     except (OSError, AttributeError):
         return False
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    done = mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX) == 1
-    return mallopt(_M_TRIM_THRESHOLD, 2 * _MMAP_THRESHOLD_MAX) == 1 and done
+    done = mallopt(_M_MMAP_MAX, 0) == 1
+    return mallopt(_M_TRIM_THRESHOLD, HEAP_TRIM_THRESHOLD) == 1 and done
 
 
 def _worker_setup_plugin() -> Any:
-    """A Dask worker plugin running :func:`_one_thread_opencv` and :func:`undo_malloc_trim` on
-    every worker, also later ones."""
+    """A Dask worker plugin running :func:`_one_thread_opencv` and :func:`keep_arrays_on_heap`
+    on every worker, also later ones."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
     class PointtrajWorkerSetup(WorkerPlugin):
@@ -518,8 +519,8 @@ def _worker_setup_plugin() -> Any:
 
         def setup(self, worker: Any) -> None:
             _one_thread_opencv(worker)
-            if undo_malloc_trim():
-                logger.info("worker %s: glibc's malloc thresholds restored", worker.address)
+            if keep_arrays_on_heap():
+                logger.info("worker %s: large arrays from glibc's heap", worker.address)
 
     return PointtrajWorkerSetup()
 

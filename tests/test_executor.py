@@ -26,7 +26,7 @@ from click.testing import CliRunner
 
 from pointtraj.cli import main
 from pointtraj.errors import FileFormatError, PointtrajError, ValidationError
-from pointtraj.executor import ExecutorConfig, SerialExecutor, open_executor, undo_malloc_trim
+from pointtraj.executor import ExecutorConfig, SerialExecutor, open_executor
 from pointtraj.pipeline import load_pipeline, run_pipeline
 from pointtraj.stages import affinity_work, semantics_work, synthesize
 
@@ -252,47 +252,52 @@ def test_a_command_on_a_local_cluster_names_it_and_its_dashboard(tmp_path, tiny_
     _assert_same_npz(tiny_reference / "work" / "affinity.npz", work / "affinity.npz")
 
 
-# -- Dask's MALLOC_TRIM_THRESHOLD_ -----------------------------------------------------------------
+# -- large arrays from glibc's heap ---------------------------------------------------------------
 _FAULTS = """
 import resource, sys, numpy as np
-from pointtraj.executor import undo_malloc_trim
-done = undo_malloc_trim() if sys.argv[1] == "undo" else None
-a = np.ones(1 << 20)
+from pointtraj.executor import keep_arrays_on_heap
+done = keep_arrays_on_heap() if sys.argv[1] == "keep" else None
+a = np.ones(int(sys.argv[2]))
 f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-for _ in range(50):
-    b = a * 2.0  # an 8 MiB temporary, freed at the next
+for _ in range(20):
+    b = a * 2.0  # a temporary, freed at the next
 print(done, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
 """
 
 
-def _temporaries_faults(how: str, trim: bool) -> tuple[str, int]:
+def _temporaries_faults(how: str, size: int, trim: bool) -> tuple[str, int]:
     env = {k: v for k, v in os.environ.items() if k != "MALLOC_TRIM_THRESHOLD_"}
     if trim:
         env["MALLOC_TRIM_THRESHOLD_"] = "65536"  # what a Dask nanny gives its worker
     out = subprocess.run(
-        [sys.executable, "-c", _FAULTS, how], env=env, capture_output=True, text=True, check=True
+        [sys.executable, "-c", _FAULTS, how, str(size)],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
     ).stdout.split()
     return out[0], int(out[1])
 
 
 @pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt is glibc's")
-def test_a_worker_started_with_dasks_malloc_trim_reuses_large_temporaries():
-    """With MALLOC_TRIM_THRESHOLD_ set, glibc maps each 8 MiB temporary afresh and faults its
-    pages in again (about 500 faults each here). undo_malloc_trim brings back the heap, as in a
-    process without it (where glibc's dynamic threshold takes a few frees to grow)."""
-    _, trimmed = _temporaries_faults("keep", trim=True)
-    done, undone = _temporaries_faults("undo", trim=True)
-    _, plain = _temporaries_faults("keep", trim=False)
-    assert trimmed > 50 * 200
-    assert done == "True" and undone * 10 < trimmed and plain * 5 < trimmed
-    assert _temporaries_faults("undo", trim=False)[0] == "False"  # nothing to undo there
-    assert undo_malloc_trim() is ("MALLOC_TRIM_THRESHOLD_" in os.environ)
+def test_large_temporaries_are_reused_from_the_heap():
+    """glibc maps a 64 MiB temporary afresh each time (above its largest mmap threshold), and
+    under Dask's MALLOC_TRIM_THRESHOLD_ an 8 MiB one as well: each faults its pages in again
+    (about 500 a time here). keep_arrays_on_heap makes them reuse the heap's memory."""
+    big, small = 8 << 20, 1 << 20  # float64 elements: 64 MiB and 8 MiB
+    done, kept = _temporaries_faults("keep", big, trim=False)
+    _, mapped = _temporaries_faults("plain", big, trim=False)
+    assert done == "True" and mapped > 20 * 200 and kept * 10 < mapped
+    _, trimmed = _temporaries_faults("plain", small, trim=True)
+    _, undone = _temporaries_faults("keep", small, trim=True)
+    assert trimmed > 20 * 200 and undone * 10 < trimmed
 
 
 @pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt is glibc's")
 def test_workers_of_a_cluster_started_elsewhere_get_the_heap_back():
     """A worker under a nanny with Dask's own environment (as ``dask worker`` starts them) has
-    MALLOC_TRIM_THRESHOLD_; the plugin that every executor registers undoes it."""
+    MALLOC_TRIM_THRESHOLD_; the plugin that every executor registers keeps its arrays on the
+    heap."""
     from distributed import Client, LocalCluster
 
     from pointtraj.executor import _worker_setup_plugin

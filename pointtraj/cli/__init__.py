@@ -70,6 +70,9 @@ def main(verbose: int) -> None:
     logging.getLogger("pointtraj").setLevel(level)
     for handler in set(logging.getLogger().handlers) - before:  # the console's, not a host's
         handler.addFilter(_not_health_warning)
+    from ..executor import keep_arrays_on_heap
+
+    keep_arrays_on_heap()  # as every worker: large temporaries reused (docs/scaling.md)
 
 
 def _not_health_warning(record: logging.LogRecord) -> bool:

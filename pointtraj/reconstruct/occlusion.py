@@ -129,9 +129,14 @@ def occlusion_test(
     gw = np.ceil(rig.sizes[:, 0] / cell_px).astype(np.int64)  # (C,)
     gh = np.ceil(rig.sizes[:, 1] / cell_px).astype(np.int64)
     base = np.concatenate([[0], np.cumsum(gw * gh)])  # (C + 1,) cell offsets per camera
-    pix = np.where(ok[..., None], proj.pixels, 0.0)
-    cx = np.clip(((pix[..., 0] + 0.5) // cell_px).astype(np.int64), 0, gw[:, None] - 1)
-    cy = np.clip(((pix[..., 1] + 0.5) // cell_px).astype(np.int64), 0, gh[:, None] - 1)
+    # A pixel inside the image is >= -0.5, so truncation floors it; elsewhere (NaN, far off)
+    # the cell is clipped and never used. Division and truncation cost a sixth of a floor
+    # division (paper69: 69 x 75,000 point-views).
+    with np.errstate(invalid="ignore"):
+        cx = ((proj.pixels[..., 0] + 0.5) / cell_px).astype(np.int64)
+        cy = ((proj.pixels[..., 1] + 0.5) / cell_px).astype(np.int64)
+    cx = np.clip(cx, 0, gw[:, None] - 1, out=cx)
+    cy = np.clip(cy, 0, gh[:, None] - 1, out=cy)
     cell = base[:-1, None] + cy * gw[:, None] + cx  # (C, N)
     half = np.broadcast_to(tol / 2, (N,))[None, :]  # (1, N)
     zbuf = np.full(int(base[-1]), np.inf)
