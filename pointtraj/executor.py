@@ -45,6 +45,7 @@ __all__ = [
     "SerialExecutor",
     "keep_arrays_on_heap",
     "open_executor",
+    "trim_heap",
     "usable_cores",
     "worker_cache",
 ]
@@ -466,7 +467,7 @@ def _one_thread_opencv(worker: Any) -> None:
 
 
 #: glibc's ``mallopt`` parameters (``malloc.h``).
-_M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4
+_M_TRIM_THRESHOLD, _M_MMAP_MAX, _M_ARENA_MAX = -1, -4, -8
 #: Free memory at the top of the heap that glibc keeps for the next large array rather than
 #: giving it back to the OS: a few of paper69's largest per-frame temporaries.
 HEAP_TRIM_THRESHOLD = 1 << 30
@@ -480,13 +481,21 @@ def keep_arrays_on_heap() -> bool:
     zeroes and faults in every page of each such temporary again. The tracker's (C, N) arrays
     are far above it (69 cameras x 75,000 points: 41 MB a float64 array). This turns mapping
     off (``M_MMAP_MAX = 0``: glibc still maps where the heap cannot grow) and keeps up to
-    :data:`HEAP_TRIM_THRESHOLD` of free memory at the heap's top. On paper69 frames 0-5 the
+    :data:`HEAP_TRIM_THRESHOLD` of free memory at the heap's top. Threads started later
+    allocate from the same heap (``M_ARENA_MAX = 1``): a Dask worker runs its tasks in a
+    thread, and a thread's own arena holds at most 64 MiB, above which glibc maps anyway. On paper69 frames 0-5 the
     kernel's share fell from 34.5 to 7.6 CPU-s and the page faults from 1.0 M to 0.19 M, for a
     peak RSS of 2.50 against 2.54 GB (``docs/scaling.md``, "Large arrays from the heap").
 
     It is process-wide: the command line sets it at start, and so does every Dask worker
     (the executor's worker plugin), which also undoes the ``MALLOC_TRIM_THRESHOLD_`` that a
-    Dask nanny gives its worker. A program that calls the library may call it once.
+    Dask nanny gives its worker. In a process where another thread has allocated already,
+    glibc no longer reads the arena limit: local clusters start their workers with
+    ``MALLOC_ARENA_MAX=1`` in the environment, and workers started by hand need it there too
+    (``docs/scaling.md``), or arrays above 64 MiB in their tasks are still mapped. A program
+    that calls the library may call this once. The heap
+    keeps what it frees, so the process's resident memory stays near its peak; a worker gives
+    it back after a task when it is above :data:`WORKER_TRIM_SHARE` of its memory limit.
 
     Returns
     -------
@@ -504,13 +513,53 @@ def keep_arrays_on_heap() -> bool:
     except (OSError, AttributeError):
         return False
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    done = mallopt(_M_MMAP_MAX, 0) == 1
-    return mallopt(_M_TRIM_THRESHOLD, HEAP_TRIM_THRESHOLD) == 1 and done
+    done = [mallopt(_M_ARENA_MAX, 1), mallopt(_M_MMAP_MAX, 0)]
+    return mallopt(_M_TRIM_THRESHOLD, HEAP_TRIM_THRESHOLD) == 1 and all(d == 1 for d in done)
+
+
+#: A worker gives its free heap memory back to the OS after a task when its resident memory is
+#: above this share of its Dask memory limit (Dask pauses a worker at 0.8 of it by default,
+#: and a heap that keeps what it freed would otherwise stay there).
+WORKER_TRIM_SHARE = 0.5
+
+
+def trim_heap() -> bool:
+    """Give the heap's free memory back to the OS (glibc's ``malloc_trim(0)``).
+
+    Returns
+    -------
+    bool
+        Whether any memory was released; False where the C library is not glibc.
+    """
+    import ctypes
+    import ctypes.util
+    import platform
+
+    if platform.libc_ver()[0] != "glibc":
+        return False
+    try:
+        malloc_trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return False
+    malloc_trim.argtypes, malloc_trim.restype = [ctypes.c_size_t], ctypes.c_int
+    return malloc_trim(0) == 1
+
+
+def _trim_if_high(worker: Any) -> None:
+    """:func:`trim_heap` on a Dask worker whose resident memory is above
+    :data:`WORKER_TRIM_SHARE` of its memory limit (nothing without a limit)."""
+    limit = getattr(getattr(worker, "memory_manager", None), "memory_limit", None)
+    if not limit:
+        return
+    import psutil
+
+    if psutil.Process().memory_info().rss > WORKER_TRIM_SHARE * limit:
+        trim_heap()
 
 
 def _worker_setup_plugin() -> Any:
     """A Dask worker plugin running :func:`_one_thread_opencv` and :func:`keep_arrays_on_heap`
-    on every worker, also later ones."""
+    on every worker, also later ones, and :func:`_trim_if_high` after each task."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
     class PointtrajWorkerSetup(WorkerPlugin):
@@ -518,9 +567,20 @@ def _worker_setup_plugin() -> Any:
         idempotent = True
 
         def setup(self, worker: Any) -> None:
+            self.worker = worker
             _one_thread_opencv(worker)
             if keep_arrays_on_heap():
                 logger.info("worker %s: large arrays from glibc's heap", worker.address)
+                if os.environ.get("MALLOC_ARENA_MAX") != "1":
+                    logger.info(
+                        "worker %s: without MALLOC_ARENA_MAX=1 in its environment, the tasks' "
+                        "arrays above 64 MiB are still mapped afresh (docs/scaling.md)",
+                        worker.address,
+                    )
+
+        def transition(self, key: Any, start: str, finish: str, **kwargs: Any) -> None:
+            if start == "executing":  # a task ended: its freed memory stays on the heap
+                _trim_if_high(self.worker)
 
     return PointtrajWorkerSetup()
 
@@ -534,12 +594,16 @@ def _worker_environ() -> dict[str, Any]:
     Dask sets it to 64 KiB to give memory back to the OS sooner; glibc then maps and unmaps
     every large numpy temporary afresh, and the stages' vectorised steps took twice the CPU
     (semantics on paper69: 3.2 CPU-s a frame on a worker against 1.3 serially; 1.5 without
-    it). The thread limits (``OMP_NUM_THREADS=1``, ...) stay.
+    it). The thread limits (``OMP_NUM_THREADS=1``, ...) stay. ``MALLOC_ARENA_MAX=1`` is
+    added: the tasks run in a thread, and glibc reads the arena limit only before a
+    process's second thread allocates, so :func:`keep_arrays_on_heap` cannot set it in a
+    running worker.
     """
     import dask
 
     environ = dict(dask.config.get(_SPAWN_ENVIRON, default={}) or {})
     environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    environ["MALLOC_ARENA_MAX"] = "1"  # see keep_arrays_on_heap
     return environ
 
 
