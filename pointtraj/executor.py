@@ -493,9 +493,9 @@ def keep_arrays_on_heap() -> bool:
     glibc no longer reads the arena limit: local clusters start their workers with
     ``MALLOC_ARENA_MAX=1`` in the environment, and workers started by hand need it there too
     (``docs/scaling.md``), or arrays above 64 MiB in their tasks are still mapped. A program
-    that calls the library may call this once. The heap
-    keeps what it frees, so the process's resident memory stays near its peak; a worker gives
-    it back after a task when it is above :data:`WORKER_TRIM_SHARE` of its memory limit.
+    that calls the library may call this once. The heap keeps what it frees, so the process's
+    resident memory stays near its peak; a worker gives it back after a task when it is above
+    :data:`WORKER_TRIM_SHARE` of its memory limit.
 
     Returns
     -------
@@ -503,16 +503,10 @@ def keep_arrays_on_heap() -> bool:
         Whether it was set: False where the C library has no ``mallopt`` (not glibc).
     """
     import ctypes
-    import ctypes.util
-    import platform
 
-    if platform.libc_ver()[0] != "glibc":
+    mallopt = _glibc("mallopt", [ctypes.c_int, ctypes.c_int])
+    if mallopt is None:
         return False
-    try:
-        mallopt = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").mallopt
-    except (OSError, AttributeError):
-        return False
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     done = [mallopt(_M_ARENA_MAX, 1), mallopt(_M_MMAP_MAX, 0)]
     return mallopt(_M_TRIM_THRESHOLD, HEAP_TRIM_THRESHOLD) == 1 and all(d == 1 for d in done)
 
@@ -532,17 +526,25 @@ def trim_heap() -> bool:
         Whether any memory was released; False where the C library is not glibc.
     """
     import ctypes
+
+    malloc_trim = _glibc("malloc_trim", [ctypes.c_size_t])
+    return malloc_trim is not None and malloc_trim(0) == 1
+
+
+def _glibc(name: str, argtypes: list) -> Callable[..., int] | None:
+    """glibc's function ``name`` (returning an int) through ctypes; None elsewhere."""
+    import ctypes
     import ctypes.util
     import platform
 
     if platform.libc_ver()[0] != "glibc":
-        return False
+        return None
     try:
-        malloc_trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+        fn = getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), name)
     except (OSError, AttributeError):
-        return False
-    malloc_trim.argtypes, malloc_trim.restype = [ctypes.c_size_t], ctypes.c_int
-    return malloc_trim(0) == 1
+        return None
+    fn.argtypes, fn.restype = argtypes, ctypes.c_int
+    return fn
 
 
 def _trim_if_high(worker: Any) -> None:
