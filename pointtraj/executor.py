@@ -483,9 +483,10 @@ def keep_arrays_on_heap() -> bool:
     off (``M_MMAP_MAX = 0``: glibc still maps where the heap cannot grow) and keeps up to
     :data:`HEAP_TRIM_THRESHOLD` of free memory at the heap's top. Threads started later
     allocate from the same heap (``M_ARENA_MAX = 1``): a Dask worker runs its tasks in a
-    thread, and a thread's own arena holds at most 64 MiB, above which glibc maps anyway. On paper69 frames 0-5 the
-    kernel's share fell from 34.5 to 7.6 CPU-s and the page faults from 1.0 M to 0.19 M, for a
-    peak RSS of 2.50 against 2.54 GB (``docs/scaling.md``, "Large arrays from the heap").
+    thread, and a thread's own arena holds at most 64 MiB, above which glibc maps anyway. On
+    paper69 frames 0-5 the kernel's share fell from 34.5 to 7.6 CPU-s and the page faults from
+    1.0 M to 0.19 M, for a peak RSS of 2.50 against 2.54 GB (``docs/reconstruction.md``,
+    "Large arrays from the heap, projections in blocks").
 
     It is process-wide: the command line sets it at start, and so does every Dask worker
     (the executor's worker plugin), which also undoes the ``MALLOC_TRIM_THRESHOLD_`` that a
