@@ -114,31 +114,12 @@ def info(path: str, voxel: float, radius: float, height: float, out: str | None)
 
 def _reconstruction_choices(cams) -> list[str]:
     """What the reconstruction's defaults choose for this rig: the lines that
-    ``ReconstructConfig.for_rig`` logs (INFO, and a WARNING for what it leaves off), taken
-    from its logger so that there is one wording of them."""
+    ``ReconstructConfig.for_rig`` logs (INFO, and a WARNING for what it leaves off)."""
     import logging
 
     from ..reconstruct.config import ReconstructConfig
 
-    records: list[logging.LogRecord] = []
-
-    class _Keep(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            records.append(record)
-
-    log = logging.getLogger("pointtraj.reconstruct.config")
-    handler, level, propagate = _Keep(logging.INFO), log.level, log.propagate
-    log.addHandler(handler)
-    log.setLevel(logging.INFO)
-    log.propagate = False  # shown here, not again on stderr
-    try:
-        ReconstructConfig().for_rig(cams)
-    finally:
-        log.removeHandler(handler)
-        log.setLevel(level)
-        log.propagate = propagate
     return [
-        ("reconstruction: " if r.levelno < logging.WARNING else "reconstruction, warning: ")
-        + r.getMessage()
-        for r in records
+        ("reconstruction: " if level < logging.WARNING else "reconstruction, warning: ") + message
+        for level, message in ReconstructConfig().rig_notes(cams)
     ]

@@ -387,11 +387,37 @@ class ReconstructConfig:
         ReconstructConfig
             With no setting left to the rig (unchanged when none was).
         """
+        cfg, notes = self._choose_for_rig(rig, log=log)
+        if log:
+            for level, message in notes:
+                logger.log(level, "%s", message)
+        return cfg
+
+    def rig_notes(self, rig: CameraRig) -> list[tuple[int, str]]:
+        """What :meth:`for_rig` logs about its choice for this rig, without logging it.
+
+        Parameters
+        ----------
+        rig : CameraRig
+
+        Returns
+        -------
+        list of (int, str)
+            ``(logging level, message)``: a WARNING for what the rig leaves off, then the
+            INFO line of the choice and its reasons; empty when nothing is left to the rig.
+        """
+        return self._choose_for_rig(rig, log=False)[1]
+
+    def _choose_for_rig(
+        self, rig: CameraRig, *, log: bool
+    ) -> tuple[ReconstructConfig, list[tuple[int, str]]]:
+        """:meth:`for_rig`'s choice and the messages that give it (``log``: the scale's)."""
         from ..scale import scale_lengths, scene_scale
 
         cfg = scale_lengths(
             self, scene_scale(rig, self.capture_volume, log=log), "[reconstruct]", log=log
         )
+        notes: list[tuple[int, str]] = []
         m, d = cfg.matching, cfg.densify
         if (
             m.guided is not None
@@ -404,7 +430,7 @@ class ReconstructConfig:
             and cfg.match_every is not None
             and cfg.views.confirm_incidence_deg is not None
         ):
-            return cfg
+            return cfg, notes
         from .views import CONFIRM_INCIDENCE_DEG, retry_periods
 
         choice = rig_choices(rig)
@@ -428,40 +454,39 @@ class ReconstructConfig:
         if confirm is None:
             unconfirmed = confirm_off_reasons(cfg, len(rig), choice.nearest_deg)
             confirm = 0.0 if unconfirmed else CONFIRM_INCIDENCE_DEG
-        if log and unconfirmed and v.enabled and v.confirm_new:
-            logger.warning(
-                "new two-view points are not searched again facing their cameras "
-                "([reconstruct.views] confirm_incidence_deg, from the rig): %s",
-                "; ".join(unconfirmed),
-            )
-        if log:
-
-            def how(value: object, left: object) -> str:
-                return f"{value} ({'from the rig' if left is None else 'set'})"
-
-            logger.info(
-                "rig-derived settings: %s; matching: guided %s, GMS threshold %s; "
-                "densification %s%s; cover_visible %s (view discovery searches each camera "
-                "every %d frame%s); match_skip_px %s; match_every %s%s; new two-view points "
-                "searched again facing their cameras %s",
-                choice.reason,
-                how("on" if guided else "off", m.guided),
-                how(f"{gms:g}", m.gms_threshold),
-                how("on" if densify else "off", d.enabled),
+        if unconfirmed and v.enabled and v.confirm_new:
+            notes.append(
                 (
-                    f" (min_ncc {how(f'{ncc:g}', d.min_ncc)}, seeds {how(seeds, d.seeds)})"
-                    if densify
-                    else ""
-                ),
-                how(cover, None if cfg.cover_visible == "auto" else cover),
-                every,
-                "" if every == 1 else "s",
-                how(f"{skip:g}", cfg.match_skip_px),
-                how(match_every, cfg.match_every),
-                _between(match_every, densify, d),
-                how(f"within {confirm:g} deg" if confirm > 0 else "off", v.confirm_incidence_deg),
+                    logging.WARNING,
+                    "new two-view points are not searched again facing their cameras "
+                    "([reconstruct.views] confirm_incidence_deg, from the rig): "
+                    + "; ".join(unconfirmed),
+                )
             )
-        return replace(
+
+        def how(value: object, left: object) -> str:
+            return f"{value} ({'from the rig' if left is None else 'set'})"
+
+        densify_how = how("on" if densify else "off", d.enabled)
+        if densify:
+            densify_how += f" (min_ncc {how(f'{ncc:g}', d.min_ncc)}, seeds {how(seeds, d.seeds)})"
+        confirm_how = how(
+            f"within {confirm:g} deg" if confirm > 0 else "off", v.confirm_incidence_deg
+        )
+        notes.append(
+            (
+                logging.INFO,
+                f"rig-derived settings: {choice.reason}; matching: guided "
+                f"{how('on' if guided else 'off', m.guided)}, GMS threshold "
+                f"{how(f'{gms:g}', m.gms_threshold)}; densification {densify_how}; cover_visible "
+                f"{how(cover, None if cfg.cover_visible == 'auto' else cover)} (view discovery "
+                f"searches each camera every {every} frame{'' if every == 1 else 's'}); "
+                f"match_skip_px {how(f'{skip:g}', cfg.match_skip_px)}; match_every "
+                f"{how(match_every, cfg.match_every)}{_between(match_every, densify, d)}; new "
+                f"two-view points searched again facing their cameras {confirm_how}",
+            )
+        )
+        cfg = replace(
             cfg,
             cover_visible=cover,
             match_skip_px=skip,
@@ -470,6 +495,7 @@ class ReconstructConfig:
             densify=replace(d, enabled=densify, min_ncc=ncc, seeds=seeds),
             views=replace(v, confirm_incidence_deg=confirm),
         )
+        return cfg, notes
 
 
 def confirm_off_reasons(cfg: ReconstructConfig, num_cameras: int, nearest_deg: float) -> list[str]:
