@@ -4,9 +4,12 @@ A synthetic capture with the paper's 69-camera rig (1280x1024, ``pipelines/paper
 ``[semantics]``: the simulated recogniser, view and average pooling) and its ground-truth
 trajectories; ``semantics_work`` runs once serially (in this process) and once on a
 ``LocalCluster`` of ``--workers`` worker processes, one after the other in the same run. Reports
-wall and CPU seconds of each (the cluster's CPU is this process's plus its workers'), the wall
-ratio, the cluster's start-up apart, a second cluster run on the same (warm) workers, and checks that both semantic maps are identical, array by
-array. The load average is printed: other work on the machine inflates wall times.
+wall and CPU seconds of each (the cluster's CPU is this process's plus its workers'; the
+kernel's share, system, apart: on a freshly booted virtual machine each new process's first
+touch of memory costs it several seconds a GiB, ``docs/scaling.md``), the wall ratio, the
+cluster's start-up apart, a second cluster run on the same (warm) workers, and checks that both
+semantic maps are identical, array by array. The load average is printed: other work on the
+machine inflates wall times.
 
 Usage::
 
@@ -34,14 +37,15 @@ from pointtraj.stages import SynthConfig, ground_truth_work, semantics_work, syn
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _cpu() -> float:
-    """User + system CPU seconds of the calling process (run on each worker)."""
+def _cpu() -> np.ndarray:
+    """(user, system) CPU seconds of the calling process (run on each worker too)."""
     r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
+    return np.array([r.ru_utime, r.ru_stime])
 
 
-def _workers_cpu(executor) -> float:
-    return float(sum(executor.client.run(_cpu).values()))
+def _workers_cpu(executor) -> np.ndarray:
+    """(user, system) CPU seconds of the workers so far, summed."""
+    return np.sum(list(executor.client.run(_cpu).values()), axis=0)
 
 
 def _same_npz(a: Path, b: Path) -> list[str]:
@@ -94,9 +98,9 @@ def main() -> None:
     )
     print(f"load average before: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
 
-    t0, c0 = time.perf_counter(), time.process_time()
+    t0, c0 = time.perf_counter(), _cpu()
     semantics_work(works["serial"], semantics, capture)
-    serial_wall, serial_cpu = time.perf_counter() - t0, time.process_time() - c0
+    serial_wall, serial_cpu = time.perf_counter() - t0, _cpu() - c0
 
     t0 = time.perf_counter()
     with open_executor(ExecutorConfig(workers=args.workers, dashboard=False)) as ex:
@@ -104,23 +108,23 @@ def main() -> None:
         runs = []
         for _ in range(2):  # cold (each worker imports and makes its recogniser), then warm
             w0 = _workers_cpu(ex)
-            t0, c0 = time.perf_counter(), time.process_time()
+            t0, c0 = time.perf_counter(), _cpu()
             semantics_work(works["cluster"], semantics, capture, executor=ex)
             wall = time.perf_counter() - t0
-            here = time.process_time() - c0
+            here = _cpu() - c0
             runs.append((wall, here + _workers_cpu(ex) - w0, here))
     (cluster_wall, cluster_cpu, cold_here), (warm_wall, warm_cpu, warm_here) = runs
     print(f"load average after:  {os.getloadavg()[0]:.2f}")
 
     differ = _same_npz(works["serial"] / "semantic_map.npz", works["cluster"] / "semantic_map.npz")
     print()
-    print(f"{'semantics':22s} {'wall s':>8s} {'CPU s':>8s} {'of it here':>10s}")
-    print(f"{'serial':22s} {serial_wall:8.1f} {serial_cpu:8.1f} {serial_cpu:10.1f}")
-    print(
-        f"{f'{args.workers}-worker local cluster':22s} {cluster_wall:8.1f} {cluster_cpu:8.1f} "
-        f"{cold_here:10.1f}"
-    )
-    print(f"{'  again (warm workers)':22s} {warm_wall:8.1f} {warm_cpu:8.1f} {warm_here:10.1f}")
+    print(f"{'semantics':22s} {'wall s':>8s} {'CPU s':>8s} {'system':>8s} {'of it here':>10s}")
+    for name, wall, cpu, here in [
+        ("serial", serial_wall, serial_cpu, serial_cpu),
+        (f"{args.workers}-worker local cluster", cluster_wall, cluster_cpu, cold_here),
+        ("  again (warm workers)", warm_wall, warm_cpu, warm_here),
+    ]:
+        print(f"{name:22s} {wall:8.1f} {cpu.sum():8.1f} {cpu[1]:8.1f} {here.sum():10.1f}")
     print(f"{'(cluster start-up)':22s} {startup:8.1f}")
     print()
     print(f"wall ratio serial / cluster: {serial_wall / cluster_wall:.2f}x")

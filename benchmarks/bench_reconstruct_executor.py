@@ -19,8 +19,11 @@ chunk plan depends only on the configuration, so they must be). Exit status 1 wh
 differ.
 
 CPU time is this process's (the serial run does all its work here) plus, for the cluster, the
-CPU seconds of the worker processes over the run (psutil). On a machine shared with other jobs the
-wall times are inflated; compare the two lines of one run.
+CPU seconds of the worker processes over the run; the kernel's share (system) is printed apart.
+On a machine shared with other jobs the wall times are inflated; compare the two lines of one
+run. On a freshly booted virtual machine the first touch of memory that no process has used yet
+costs the kernel several seconds a GiB (``docs/scaling.md``), and every new process's heap pays
+it: a high system share says so.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import resource
 import shutil
 import sys
 import time
@@ -56,16 +60,15 @@ def _same(a: Path, b: Path) -> list[str]:
     return bad
 
 
-def _worker_cpu(executor) -> float:
-    """CPU seconds of the cluster's worker processes so far (user + system)."""
+def _cpu() -> np.ndarray:
+    """(user, system) CPU seconds of the calling process so far."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return np.array([r.ru_utime, r.ru_stime])
 
-    def cpu() -> float:
-        import psutil
 
-        t = psutil.Process().cpu_times()
-        return t.user + t.system
-
-    return float(sum(executor.client.run(cpu).values()))
+def _worker_cpu(executor) -> np.ndarray:
+    """(user, system) CPU seconds of the cluster's worker processes so far, summed."""
+    return np.sum(list(executor.client.run(_cpu).values()), axis=0)
 
 
 def main() -> int:
@@ -104,26 +107,31 @@ def main() -> int:
         shutil.rmtree(args.out)
     rows = []
 
-    t0, c0 = time.perf_counter(), time.process_time()
+    t0, c0 = time.perf_counter(), _cpu()
     serial = reconstruct_work(
         args.out / "serial", args.capture, cfg, frames, executor=SerialExecutor()
     )
-    rows.append(("serial", time.perf_counter() - t0, time.process_time() - c0, serial))
+    rows.append(("serial", time.perf_counter() - t0, _cpu() - c0, serial))
 
     t0 = time.perf_counter()
     with open_executor(ExecutorConfig(workers=args.workers)) as ex:
         startup = time.perf_counter() - t0
         logging.getLogger("distributed").setLevel(logging.ERROR)  # its import reset it
         w0 = _worker_cpu(ex)
-        t0, c0 = time.perf_counter(), time.process_time()
+        t0, c0 = time.perf_counter(), _cpu()
         traj = reconstruct_work(args.out / "cluster", args.capture, cfg, frames, executor=ex)
-        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        wall, cpu = time.perf_counter() - t0, _cpu() - c0
         cpu += _worker_cpu(ex) - w0
     rows.append((f"{args.workers}-worker local cluster", wall, cpu, traj))
 
-    print(f"{'run':<26}{'wall s':>9}{'CPU s':>9}{'trajectories':>14}{'point-frames':>14}")
-    for name, wall, cpu, t in rows:
-        print(f"{name:<26}{wall:>9.1f}{cpu:>9.1f}{t.num_trajectories:>14}{t.num_point_frames:>14}")
+    print(
+        f"{'run':<26}{'wall s':>9}{'CPU s':>9}{'system':>9}{'trajectories':>14}{'point-frames':>14}"
+    )
+    for name, wall, (user, system), t in rows:
+        print(
+            f"{name:<26}{wall:>9.1f}{user + system:>9.1f}{system:>9.1f}{t.num_trajectories:>14}"
+            f"{t.num_point_frames:>14}"
+        )
     print(f"cluster start-up (not counted): {startup:.1f} s")
     print(f"speed-up (wall): {rows[0][1] / rows[1][1]:.2f}x")
     bad = _same(args.out / "serial", args.out / "cluster")
