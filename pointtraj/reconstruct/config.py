@@ -374,7 +374,7 @@ class ReconstructConfig:
         gives reasons),
         ``cover_visible = "auto"`` from its camera count, and ``match_skip_px`` and
         ``match_every`` left out from ``cover_visible``; set ones are kept. The choice is
-        logged at INFO, with its reasons.
+        logged at INFO, with its reasons (:meth:`rig_notes` gives the same messages).
 
         Parameters
         ----------
