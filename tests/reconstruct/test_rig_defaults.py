@@ -48,7 +48,11 @@ def test_for_rig_chooses_from_baselines_and_resolution(preset, guided, gms, dens
     assert cfg.match_every == (2 if cover == "on" else 1)
     assert "rig-derived settings" in caplog.text and "from the rig" in caplog.text
     # `rig info` shows the same lines, taken from the same messages without logging them
-    logged = [(r.levelno, r.getMessage()) for r in caplog.records if r.name.endswith(".config")]
+    logged = [
+        (r.levelno, r.getMessage())
+        for r in caplog.records
+        if r.name == "pointtraj.reconstruct.config"
+    ]
     assert ReconstructConfig().rig_notes(rig) == logged
     # what densification does on the frames between is said where there are such frames
     between = "densification between from points moving over 4 px" in caplog.text
