@@ -233,7 +233,8 @@ def config_edges(rig: CameraRig, config: ReconstructConfig) -> np.ndarray:
 def covered_by(
     live_pixels: np.ndarray, new_pixels: np.ndarray, radius_px: float, min_views: int
 ) -> np.ndarray:
-    """Which new points a live trajectory already covers (KD-tree per camera).
+    """Which new points a live trajectory already covers (:func:`~.matching.near_pixels` per
+    camera).
 
     Parameters
     ----------
@@ -253,7 +254,7 @@ def covered_by(
     live = check_array("live_pixels", live_pixels, (None, None, 2))
     new = check_array("new_pixels", new_pixels, (live.shape[0], None, 2))
     hits = np.zeros(new.shape[1], np.int64)
-    for c in range(live.shape[0]):  # one vectorised KD-tree query per camera
+    for c in range(live.shape[0]):  # one vectorised query per camera
         hits += near_pixels(live[c], new[c], radius_px)
     return hits >= min_views
 

@@ -18,6 +18,7 @@ from pointtraj.reconstruct.matching import (
     epipolar_distances,
     match_frame,
     match_pair,
+    near_pixels,
     resolve_ambiguous,
     without_near,
 )
@@ -217,6 +218,46 @@ def test_match_frame_skips_features_near_live_pixels(plane_scene):
     assert len(kept) == len(f0) - 10 and len(kept.keypoints) == len(kept.descriptors)
     with pytest.raises(ValidationError, match="skip"):
         match_frame(rig, images, edges, cfg, skip=skip[:2], skip_px=1.0)
+
+
+def test_near_pixels_answers_as_a_kd_tree():
+    """The cell search gives SciPy's k-d tree answers (strictly within the radius), also for
+    queries at exactly the radius, NaN rows, float32 pixels, pixels far outside the queries'
+    cells and queries spread too wide for the cells (the tree itself then)."""
+    from scipy.spatial import cKDTree
+
+    def tree(pixels, queries, r):
+        pts = np.asarray(pixels, np.float64)
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        ok = np.isfinite(queries).all(axis=1)
+        out = np.zeros(len(queries), bool)
+        if len(pts) and ok.any():
+            d, _ = cKDTree(pts).query(queries[ok], k=1, distance_upper_bound=r)
+            out[ok] = np.isfinite(d)
+        return out
+
+    rng = np.random.default_rng(7)
+    near_any = 0
+    for trial in range(120):
+        n, m = rng.integers(1, 2000, size=2)
+        scale = [10.0, 1280.0, 1e5, 1e8][trial % 4]  # the last: more cells than the grid takes
+        r = float(rng.choice([0.5, 1.5, 3.0, 24.0]))
+        p = rng.uniform(-0.1 * scale, scale, (n, 2))
+        q = rng.uniform(-0.1 * scale, scale, (m, 2))
+        k = min(n, m) // 2
+        angle = rng.uniform(0, 2 * np.pi, k)
+        q[:k] = p[:k] + r * rng.uniform(0.99, 1.01, (k, 1)) * np.c_[np.cos(angle), np.sin(angle)]
+        q[: k // 4] = p[: k // 4] + [r, 0.0]  # exactly at the radius: not near
+        p[rng.random(n) < 0.05] = np.nan
+        q[rng.random(m) < 0.05, 1] = np.nan
+        if trial % 2:
+            p = p.astype(np.float32)
+        want = tree(p, q, r)
+        np.testing.assert_array_equal(near_pixels(p, q, r), want)
+        near_any += int(want.sum())
+    assert near_any > 10_000  # the comparisons are not all "far"
+    assert not near_pixels(np.zeros((3, 2)), np.zeros((2, 2)), 0.0).any()
+    assert near_pixels(np.zeros((0, 2)), np.zeros((2, 2)), 1.0).shape == (2,)
 
 
 def test_match_frame_validates_inputs(plane_scene):
