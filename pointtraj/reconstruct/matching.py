@@ -909,17 +909,19 @@ def near_pixels(pixels: np.ndarray, queries: np.ndarray, radius_px: float) -> np
         return near
     q = np.asarray(queries, np.float64)[ok]
     cell = radius_px * (1 + 1e-9)  # a pixel nearer than the radius is in a neighbouring cell
-    qx, qy = np.floor(q[:, 0] / cell), np.floor(q[:, 1] / cell)
+    with np.errstate(over="ignore"):  # pixels near the float range: inf cells, the tree
+        qx, qy = np.floor(q[:, 0] / cell), np.floor(q[:, 1] / cell)
     x0, x1, y0, y1 = qx.min() - 1, qx.max() + 1, qy.min() - 1, qy.max() + 1
-    ny = int(y1 - y0 + 1)
-    cells = int(x1 - x0 + 1) * ny
-    if (x1 - x0 + 1) * (y1 - y0 + 1) > _NEAR_MAX_CELLS:
+    if not (x1 - x0 + 1) * (y1 - y0 + 1) <= _NEAR_MAX_CELLS:  # (inf beyond float range)
         from scipy.spatial import cKDTree
 
         d, _ = cKDTree(pts).query(q, k=1, distance_upper_bound=radius_px)
         near[np.flatnonzero(ok)] = np.isfinite(d)
         return near
-    px, py = np.floor(pts[:, 0] / cell), np.floor(pts[:, 1] / cell)
+    ny = int(y1 - y0 + 1)
+    cells = int(x1 - x0 + 1) * ny
+    with np.errstate(over="ignore"):
+        px, py = np.floor(pts[:, 0] / cell), np.floor(pts[:, 1] / cell)
     inside = (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1)  # the others are near no query
     pts = pts[inside]
     key = ((px[inside] - x0) * ny + (py[inside] - y0)).astype(np.int64)  # cell, column-major

@@ -258,6 +258,8 @@ def test_near_pixels_answers_as_a_kd_tree():
     assert near_any > 10_000  # the comparisons are not all "far"
     assert not near_pixels(np.zeros((3, 2)), np.zeros((2, 2)), 0.0).any()
     assert near_pixels(np.zeros((0, 2)), np.zeros((2, 2)), 1.0).shape == (2,)
+    huge = np.array([[1e308, 0.0], [0.0, 0.0]])  # beyond the cells' float range: the tree
+    np.testing.assert_array_equal(near_pixels(huge, huge, 0.5), [True, True])
 
 
 def test_match_frame_validates_inputs(plane_scene):
