@@ -37,15 +37,16 @@ from pointtraj.stages import SynthConfig, ground_truth_work, semantics_work, syn
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _cpu() -> np.ndarray:
-    """(user, system) CPU seconds of the calling process (run on each worker too)."""
+def process_cpu() -> np.ndarray:
+    """(user, system) CPU seconds of the calling process (run on each worker too; also
+    ``bench_reconstruct_executor.py``'s)."""
     r = resource.getrusage(resource.RUSAGE_SELF)
     return np.array([r.ru_utime, r.ru_stime])
 
 
-def _workers_cpu(executor) -> np.ndarray:
+def workers_cpu(executor) -> np.ndarray:
     """(user, system) CPU seconds of the workers so far, summed."""
-    return np.sum(list(executor.client.run(_cpu).values()), axis=0)
+    return np.sum(list(executor.client.run(process_cpu).values()), axis=0)
 
 
 def _same_npz(a: Path, b: Path) -> list[str]:
@@ -98,21 +99,21 @@ def main() -> None:
     )
     print(f"load average before: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
 
-    t0, c0 = time.perf_counter(), _cpu()
+    t0, c0 = time.perf_counter(), process_cpu()
     semantics_work(works["serial"], semantics, capture)
-    serial_wall, serial_cpu = time.perf_counter() - t0, _cpu() - c0
+    serial_wall, serial_cpu = time.perf_counter() - t0, process_cpu() - c0
 
     t0 = time.perf_counter()
     with open_executor(ExecutorConfig(workers=args.workers, dashboard=False)) as ex:
         startup = time.perf_counter() - t0
         runs = []
         for _ in range(2):  # cold (each worker imports and makes its recogniser), then warm
-            w0 = _workers_cpu(ex)
-            t0, c0 = time.perf_counter(), _cpu()
+            w0 = workers_cpu(ex)
+            t0, c0 = time.perf_counter(), process_cpu()
             semantics_work(works["cluster"], semantics, capture, executor=ex)
             wall = time.perf_counter() - t0
-            here = _cpu() - c0
-            runs.append((wall, here + _workers_cpu(ex) - w0, here))
+            here = process_cpu() - c0
+            runs.append((wall, here + workers_cpu(ex) - w0, here))
     (cluster_wall, cluster_cpu, cold_here), (warm_wall, warm_cpu, warm_here) = runs
     print(f"load average after:  {os.getloadavg()[0]:.2f}")
 

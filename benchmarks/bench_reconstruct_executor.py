@@ -31,13 +31,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import resource
 import shutil
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from bench_executor import process_cpu, workers_cpu  # (this script's folder is on sys.path)
 
 
 def _same(a: Path, b: Path) -> list[str]:
@@ -58,17 +58,6 @@ def _same(a: Path, b: Path) -> list[str]:
         if (a / "clouds" / n).read_bytes() != (b / "clouds" / n).read_bytes()
     ]
     return bad
-
-
-def _cpu() -> np.ndarray:
-    """(user, system) CPU seconds of the calling process so far."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return np.array([r.ru_utime, r.ru_stime])
-
-
-def _worker_cpu(executor) -> np.ndarray:
-    """(user, system) CPU seconds of the cluster's worker processes so far, summed."""
-    return np.sum(list(executor.client.run(_cpu).values()), axis=0)
 
 
 def main() -> int:
@@ -107,21 +96,21 @@ def main() -> int:
         shutil.rmtree(args.out)
     rows = []
 
-    t0, c0 = time.perf_counter(), _cpu()
+    t0, c0 = time.perf_counter(), process_cpu()
     serial = reconstruct_work(
         args.out / "serial", args.capture, cfg, frames, executor=SerialExecutor()
     )
-    rows.append(("serial", time.perf_counter() - t0, _cpu() - c0, serial))
+    rows.append(("serial", time.perf_counter() - t0, process_cpu() - c0, serial))
 
     t0 = time.perf_counter()
     with open_executor(ExecutorConfig(workers=args.workers)) as ex:
         startup = time.perf_counter() - t0
         logging.getLogger("distributed").setLevel(logging.ERROR)  # its import reset it
-        w0 = _worker_cpu(ex)
-        t0, c0 = time.perf_counter(), _cpu()
+        w0 = workers_cpu(ex)
+        t0, c0 = time.perf_counter(), process_cpu()
         traj = reconstruct_work(args.out / "cluster", args.capture, cfg, frames, executor=ex)
-        wall, cpu = time.perf_counter() - t0, _cpu() - c0
-        cpu += _worker_cpu(ex) - w0
+        wall, cpu = time.perf_counter() - t0, process_cpu() - c0
+        cpu += workers_cpu(ex) - w0
     rows.append((f"{args.workers}-worker local cluster", wall, cpu, traj))
 
     print(
