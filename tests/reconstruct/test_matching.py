@@ -16,6 +16,7 @@ from pointtraj.reconstruct.matching import (
     build_tracks,
     detect_features,
     epipolar_distances,
+    hamming_nearest,
     match_frame,
     match_pair,
     near_pixels,
@@ -101,6 +102,32 @@ def test_match_pair_is_geometrically_correct(plane_scene):
     # 1 px is about 5 mm on the plane here; nearly all matches land on the same plane point
     assert np.median(gap) < 0.005
     assert np.mean(gap < 0.02) > 0.97
+
+
+@pytest.mark.parametrize("cross_check", [False, True])
+def test_hamming_nearest_answers_as_opencvs_brute_force_matcher(plane_scene, cross_check):
+    """The same pairs and distances as cv2.BFMatcher, the first of equally near ones included."""
+    import cv2
+
+    rig, images = plane_scene
+    cfg = MatchingConfig(num_features=2000)
+    fa, fb = detect_features(images[0], cfg), detect_features(images[1], cfg)
+    rng = np.random.default_rng(2)
+    # few distinct bits make many ties; repeated rows tie exactly
+    coarse = rng.integers(0, 2, (300, 32), dtype=np.uint8) * np.uint8(0x81)
+    coarse[100:] = coarse[rng.integers(0, 100, 200)]
+    for qa, tb in (
+        (fa.descriptors, fb.descriptors),
+        (coarse[:150], coarse[150:]),
+        (coarse[:5], coarse[5:6]),
+    ):
+        want = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=cross_check).match(qa, tb)
+        pairs, dist = hamming_nearest(qa, tb, cross_check=cross_check)
+        assert pairs.tolist() == [[m.queryIdx, m.trainIdx] for m in want]
+        assert dist.tolist() == [m.distance for m in want]
+    assert len(hamming_nearest(fa.descriptors, fb.descriptors[:0])[0]) == 0
+    with pytest.raises(ValidationError, match="descriptors"):
+        hamming_nearest(fa.descriptors, fb.descriptors[:, :16])
 
 
 def test_build_tracks_chains_and_flags_ambiguity():
