@@ -27,10 +27,15 @@ if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv with $($PY --version)" >&2
   "$PY" -m venv .venv
 fi
-stamp=".venv/.pointtraj-installed${extras:+-$extras}"
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-  echo "setup: installing pointtraj${extras:+[$extras]} into .venv" >&2
+# The numerical libraries at the versions the documented figures were measured with
+# (scripts/constraints.txt); POINTTRAJ_UNPINNED=1 takes the newest instead.
+constraints=scripts/constraints.txt
+pins=(-c "$constraints")
+[ "${POINTTRAJ_UNPINNED:-}" = "1" ] && pins=()
+stamp=".venv/.pointtraj-installed${extras:+-$extras}${pins[*]:+-pinned}"
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$constraints" -nt "$stamp" ]; then
+  echo "setup: installing pointtraj${extras:+[$extras]} into .venv${pins[*]:+ (versions of $constraints)}" >&2
   .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e ".${extras:+[$extras]}"
+  .venv/bin/python -m pip install -q -e ".${extras:+[$extras]}" "${pins[@]}"
   touch "$stamp"
 fi

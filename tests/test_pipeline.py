@@ -84,6 +84,10 @@ def test_run_makes_every_output(tiny_run):
     index = (config.work / "report" / "index.md").read_text(encoding="utf-8")
     for title in ("Ground truth", "Affinity effectiveness", "Predictive validity", "Timing"):
         assert f"## {title}" in index
+    from importlib.metadata import version
+
+    assert f"| numpy | {version('numpy')} |" in index  # the report names its libraries
+    assert f"| faiss-cpu | {version('faiss-cpu')} |" in index
     assert (config.work / "report" / "validity.png").is_file()
     assert all(v >= 0 for v in timings.values())
     renders = config.work / "renders"

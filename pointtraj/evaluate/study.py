@@ -1060,6 +1060,21 @@ def _timing_section(wf: WorkFolder, metrics: dict) -> Section:
     )
 
 
+def _software_section() -> Section:
+    """The library versions of the environment that wrote the report."""
+    from ..versions import library_versions
+
+    rows = ["| library | version |", "|---|---|"]
+    rows += [f"| {k} | {v} |" for k, v in library_versions().items()]
+    return Section(
+        "Software",
+        "The libraries of the environment that wrote this report. The results depend on their "
+        "versions: another one can round a value differently, and the tracker's decisions and "
+        "the figures follow. `scripts/constraints.txt` holds those that the documented figures "
+        "were measured with.\n\n" + "\n".join(rows),
+    )
+
+
 @locked("pointtraj evaluate")
 def evaluate_work(
     work: str | os.PathLike,
@@ -1219,6 +1234,7 @@ def evaluate_work(
         except ValidationError as exc:
             notes.append(f"Predictive validity skipped: {exc}")
     sections.append(_timing_section(wf, metrics))
+    sections.append(_software_section())
     sections.insert(0, _health_section(wf, Path(cap), traj, labels, metrics))
     if notes:
         sections.insert(2, Section("Notes", "\n".join(f"- {n}" for n in notes)))
