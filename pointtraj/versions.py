@@ -1,6 +1,6 @@
 """The versions of the libraries that compute pointtraj's results.
 
-Another version of OpenCV, numpy or FAISS can round a value differently, the tracker then
+Another version of OpenCV or numpy can round a value differently, the tracker then
 decides differently from there on, and the figures move (the demo's trajectories were 1,516
 with OpenCV 5.0.0 and 1,569 with 4.14.0). ``scripts/constraints.txt`` pins the versions the
 documented figures were measured with, and every report names the ones it was made with.
@@ -27,7 +27,6 @@ NUMERICAL_LIBRARIES: tuple[tuple[str, ...], ...] = (
     ("pycolmap",),
     ("PyMaxflow",),
     ("onnxruntime", "onnxruntime-gpu"),
-    ("faiss-cpu", "faiss-gpu"),
 )
 
 

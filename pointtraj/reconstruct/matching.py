@@ -432,9 +432,10 @@ def hamming_nearest(
     """Each query descriptor's nearest train descriptor by Hamming distance (exact).
 
     The answer of OpenCV's ``BFMatcher(NORM_HAMMING, crossCheck).match``, the first of equally
-    near train descriptors included, from FAISS's exact binary index (``IndexBinaryFlat``),
-    which counts the differing bits at a tenth of the BFMatcher's CPU time on ORB descriptors
-    (``docs/reconstruction.md``, "Brute-force matching by FAISS").
+    near train descriptors included, at about a third of its CPU time on ORB descriptors: the
+    distances are popcounts of 64-bit words, summed in uint8 over blocks of queries against
+    every train descriptor (:func:`_nearest_words`; ``docs/reconstruction.md``, "Brute-force
+    matching in numpy").
 
     Parameters
     ----------
@@ -452,35 +453,71 @@ def hamming_nearest(
     distance : (Q,) int64 ndarray
         Their Hamming distances in bits.
     """
-    import faiss
-
-    # One OpenMP thread: the search is over in tens of milliseconds, and FAISS's threads spin
-    # while they wait. Two serial runs of 12 demo frames at once took 304 CPU-s each with its
-    # default of one thread per core, against 31-34 with one (20 for one run alone).
-    faiss.omp_set_num_threads(1)
-    q = np.ascontiguousarray(queries, np.uint8)
-    t = np.ascontiguousarray(train, np.uint8)
-    if q.ndim != 2 or t.ndim != 2 or q.shape[1] != t.shape[1]:
+    q, t = np.asarray(queries), np.asarray(train)
+    if q.ndim != 2 or t.ndim != 2 or q.shape[1] != t.shape[1] or q.dtype != np.uint8:
         raise ValidationError(
             f"hamming_nearest: descriptors must be (N, B) and (M, B) uint8, got {q.shape} "
-            f"and {t.shape}"
+            f"{q.dtype} and {t.shape} {t.dtype}"
         )
     if len(q) == 0 or len(t) == 0:
         return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-
-    def nearest(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        index = faiss.IndexBinaryFlat(8 * b.shape[1])
-        index.add(b)
-        d, j = index.search(a, 1)
-        return j[:, 0].astype(np.int64), d[:, 0].astype(np.int64)
-
-    j, d = nearest(q, t)
+    qw, tw = _words(q), _words(np.asarray(t, np.uint8))
+    j = _nearest_words(qw, tw)
+    d = np.bitwise_count(qw ^ tw[j]).sum(axis=1, dtype=np.int64)
     i = np.arange(len(q))
     if cross_check:
-        back, _ = nearest(t, q)
-        mutual = back[j] == i
+        mutual = _nearest_words(tw, qw)[j] == i
         i, j, d = i[mutual], j[mutual], d[mutual]
     return np.column_stack([i, j]), d
+
+
+def _words(descriptors: np.ndarray) -> np.ndarray:
+    """(N, B) uint8 descriptors as (N, ceil(B / 8)) uint64 words, zero-padded."""
+    n, b = descriptors.shape
+    padded = np.zeros((n, -(-b // 8) * 8), np.uint8)
+    padded[:, :b] = descriptors
+    return padded.view(np.uint64)
+
+
+def _nearest_words(a: np.ndarray, b: np.ndarray, block: int = 64) -> np.ndarray:
+    """Index of each row of ``a``'s nearest row of ``b`` by Hamming distance, the first of equals.
+
+    Parameters
+    ----------
+    a : (N, W) uint64 ndarray
+    b : (M, W) uint64 ndarray
+    block : int
+        Rows of ``a`` per pass: the (block, M) temporaries stay in cache (64 x 5,500 words of
+        8 bytes: 2.8 MB).
+
+    Returns
+    -------
+    (N,) int64 ndarray
+    """
+    n, w = a.shape
+    bt = np.ascontiguousarray(b.T)  # (W, M): each word of every b row, contiguous
+    acc = np.uint8 if w <= 4 else np.uint16  # 4 words: at most 256 bits, 256 reads as 0
+    xor = np.empty((block, len(b)), np.uint64)
+    count = np.empty((block, len(b)), np.uint8)
+    dist = np.empty((block, len(b)), acc)
+    out = np.empty(n, np.int64)
+    for s in range(0, n, block):
+        rows = a[s : s + block]
+        k = len(rows)
+        x, c, d = xor[:k], count[:k], dist[:k]
+        np.bitwise_xor(rows[:, :1], bt[0], out=x)
+        np.bitwise_count(x, out=c)
+        d[...] = c
+        for word in range(1, w):
+            np.bitwise_xor(rows[:, word : word + 1], bt[word], out=x)
+            np.bitwise_count(x, out=c)
+            np.add(d, c, out=d)
+        out[s : s + k] = d.argmin(axis=1)
+    if w == 4:  # a distance of 256 wrapped to 0 in uint8 and was taken: redo those rows
+        wrong = np.flatnonzero(np.bitwise_count(a ^ b[out]).sum(axis=1) == 256)
+        for r in wrong.tolist():  # all 256 bits differ: next to never
+            out[r] = np.bitwise_count(a[r] ^ b).sum(axis=1, dtype=np.int64).argmin()
+    return out
 
 
 def _dmatches(pairs: np.ndarray, distance: np.ndarray) -> list:
@@ -912,6 +949,9 @@ def match_pairs(
 ) -> list[np.ndarray]:
     """:func:`match_pair` over camera pairs, each image's guided-matching terms computed once.
 
+    Brute-force pairs (``cfg.guided`` off) are matched on as many threads as OpenCV uses
+    (:func:`_brute_force_threads`); the result is the same on any number.
+
     Parameters
     ----------
     rig : CameraRig
@@ -934,11 +974,28 @@ def match_pairs(
             for c in np.unique(edges)
             if len(features[c]) >= 2
         }
-    out = []
-    for a, b in np.asarray(edges, dtype=np.int64).reshape(-1, 2).tolist():
+
+    def one(pair: list[int]) -> np.ndarray:
+        a, b = pair
         pair_terms = (terms[a], terms[b]) if a in terms and b in terms else None
-        out.append(match_pair(rig, a, b, features[a], features[b], cfg, terms=pair_terms))
-    return out
+        return match_pair(rig, a, b, features[a], features[b], cfg, terms=pair_terms)
+
+    pairs = np.asarray(edges, dtype=np.int64).reshape(-1, 2).tolist()
+    threads = 1 if cfg.guided else min(_brute_force_threads(), len(pairs))
+    if threads > 1:  # numpy and GMS release the GIL; the pairs come back in order
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(threads, thread_name_prefix="match") as pool:
+            return list(pool.map(one, pairs))
+    return [one(p) for p in pairs]
+
+
+def _brute_force_threads() -> int:
+    """Threads for brute-force pair matching: OpenCV's (the cores, or 1 in a one-thread Dask
+    worker, where the worker process is the core: ``executor._one_thread_opencv``)."""
+    import cv2
+
+    return max(1, cv2.getNumThreads())
 
 
 #: Cells (of the radius) beyond which :func:`near_pixels` asks a k-d tree instead: 4 M int64

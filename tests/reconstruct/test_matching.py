@@ -116,10 +116,15 @@ def test_hamming_nearest_answers_as_opencvs_brute_force_matcher(plane_scene, cro
     # few distinct bits make many ties; repeated rows tie exactly
     coarse = rng.integers(0, 2, (300, 32), dtype=np.uint8) * np.uint8(0x81)
     coarse[100:] = coarse[rng.integers(0, 100, 200)]
+    # every bit different (256, which wraps to 0 in the uint8 sums) before a nearer one
+    far = np.vstack([~coarse[:1], coarse[1:2], ~coarse[:1]])
     for qa, tb in (
         (fa.descriptors, fb.descriptors),
         (coarse[:150], coarse[150:]),
         (coarse[:5], coarse[5:6]),
+        (coarse[:1], far),
+        (coarse[:1], far[:1]),
+        (fa.descriptors[:, :20], fb.descriptors[:, :20]),  # not a whole number of words
     ):
         want = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=cross_check).match(qa, tb)
         pairs, dist = hamming_nearest(qa, tb, cross_check=cross_check)
