@@ -454,14 +454,20 @@ def hamming_nearest(
         Their Hamming distances in bits.
     """
     q, t = np.asarray(queries), np.asarray(train)
-    if q.ndim != 2 or t.ndim != 2 or q.shape[1] != t.shape[1] or q.dtype != np.uint8:
+    if (
+        q.ndim != 2
+        or t.ndim != 2
+        or q.shape[1] != t.shape[1]
+        or q.dtype != np.uint8
+        or t.dtype != np.uint8
+    ):
         raise ValidationError(
             f"hamming_nearest: descriptors must be (N, B) and (M, B) uint8, got {q.shape} "
             f"{q.dtype} and {t.shape} {t.dtype}"
         )
     if len(q) == 0 or len(t) == 0:
         return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    qw, tw = _words(q), _words(np.asarray(t, np.uint8))
+    qw, tw = _words(q), _words(t)
     j = _nearest_words(qw, tw)
     d = np.bitwise_count(qw ^ tw[j]).sum(axis=1, dtype=np.int64)
     i = np.arange(len(q))

@@ -133,6 +133,8 @@ def test_hamming_nearest_answers_as_opencvs_brute_force_matcher(plane_scene, cro
     assert len(hamming_nearest(fa.descriptors, fb.descriptors[:0])[0]) == 0
     with pytest.raises(ValidationError, match="descriptors"):
         hamming_nearest(fa.descriptors, fb.descriptors[:, :16])
+    with pytest.raises(ValidationError, match="descriptors"):
+        hamming_nearest(fa.descriptors, fb.descriptors.astype(np.float32))
 
 
 def test_build_tracks_chains_and_flags_ambiguity():
