@@ -468,25 +468,25 @@ def hamming_nearest(
     if len(q) == 0 or len(t) == 0:
         return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
     qw, tw = _words(q), _words(t)
-    j = _nearest_words(qw, tw)
-    d = np.bitwise_count(qw ^ tw[j]).sum(axis=1, dtype=np.int64)
+    j, d = _nearest_words(qw, tw)
     i = np.arange(len(q))
     if cross_check:
-        mutual = _nearest_words(tw, qw)[j] == i
+        mutual = _nearest_words(tw, qw)[0][j] == i
         i, j, d = i[mutual], j[mutual], d[mutual]
     return np.column_stack([i, j]), d
 
 
 def _words(descriptors: np.ndarray) -> np.ndarray:
-    """(N, B) uint8 descriptors as (N, ceil(B / 8)) uint64 words, zero-padded."""
+    """(N, B) uint8 descriptors as (N, ceil(B / 8)) uint64 words, zero-padded (ORB: 4 words;
+    also the guided matcher's, :func:`_camera_terms`)."""
     n, b = descriptors.shape
     padded = np.zeros((n, -(-b // 8) * 8), np.uint8)
     padded[:, :b] = descriptors
     return padded.view(np.uint64)
 
 
-def _nearest_words(a: np.ndarray, b: np.ndarray, block: int = 64) -> np.ndarray:
-    """Index of each row of ``a``'s nearest row of ``b`` by Hamming distance, the first of equals.
+def _nearest_words(a: np.ndarray, b: np.ndarray, block: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """Each row of ``a``'s nearest row of ``b`` by Hamming distance, the first of equals.
 
     Parameters
     ----------
@@ -498,7 +498,9 @@ def _nearest_words(a: np.ndarray, b: np.ndarray, block: int = 64) -> np.ndarray:
 
     Returns
     -------
-    (N,) int64 ndarray
+    index : (N,) int64 ndarray
+    distance : (N,) int64 ndarray
+        In bits.
     """
     n, w = a.shape
     bt = np.ascontiguousarray(b.T)  # (W, M): each word of every b row, contiguous
@@ -519,11 +521,13 @@ def _nearest_words(a: np.ndarray, b: np.ndarray, block: int = 64) -> np.ndarray:
             np.bitwise_count(x, out=c)
             np.add(d, c, out=d)
         out[s : s + k] = d.argmin(axis=1)
+    dist_out = np.bitwise_count(a ^ b[out]).sum(axis=1, dtype=np.int64)
     if w == 4:  # a distance of 256 wrapped to 0 in uint8 and was taken: redo those rows
-        wrong = np.flatnonzero(np.bitwise_count(a ^ b[out]).sum(axis=1) == 256)
-        for r in wrong.tolist():  # all 256 bits differ: next to never
-            out[r] = np.bitwise_count(a[r] ^ b).sum(axis=1, dtype=np.int64).argmin()
-    return out
+        for r in np.flatnonzero(dist_out == 256).tolist():  # all 256 bits differ: next to never
+            row = np.bitwise_count(a[r] ^ b).sum(axis=1, dtype=np.int64)
+            out[r] = row.argmin()
+            dist_out[r] = row[out[r]]
+    return out, dist_out
 
 
 def _dmatches(pairs: np.ndarray, distance: np.ndarray) -> list:
@@ -642,8 +646,7 @@ def _camera_terms(rig: CameraRig, cam: int, features: Features) -> _CameraTerms:
     h = np.concatenate([x, np.ones((len(x), 1))], axis=1)  # (F, 3)
     d = h @ rig.R[cam]  # (F, 3) = (R^T h)^T
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    words = np.ascontiguousarray(features.descriptors).view(np.uint64)  # (F, 4)
-    return _CameraTerms(x, h, d, np.ascontiguousarray(words.T))
+    return _CameraTerms(x, h, d, np.ascontiguousarray(_words(features.descriptors).T))
 
 
 def _epipolar_angles(rays: np.ndarray, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
