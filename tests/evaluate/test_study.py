@@ -294,3 +294,39 @@ def test_off_surface_share_follows_each_point_frame_views(gt_work, tmp_path):
     assert metrics["gt.off_surface.views.4+.share"] == 0.0
     assert metrics["gt.off_surface.share"] == pytest.approx(odd.mean())
     assert "off the surface** (above 10 %)" in (moved / "report" / "index.md").read_text()
+
+
+def test_actor_error_leaves_the_background_out(gt_work):
+    """The figure on the figures and objects measures their point-frames alone: points of
+    the background's trajectories 4 cm off raise the error of all point-frames, not theirs,
+    and the supports split the point-frames by their trajectories' true labels."""
+    from pointtraj.evaluate.study import _actor_error, _q
+
+    rng = np.random.default_rng(0)
+    truth = np.repeat([0, 3, -1, -2, 5], 40)  # (200,) per point-frame
+    err = np.where(truth >= 0, rng.uniform(0, 0.002, 200), 0.04)
+    err[0] = np.nan  # no surface near: left out of the percentiles, as for all point-frames
+    metrics: dict = {}
+    line = _actor_error(err, truth, metrics)
+    assert metrics["gt.error_m.actors.support"] == 119
+    assert metrics["gt.error_m.background.support"] == 40
+    assert metrics["gt.error_m.actors.p90"] < 0.002 < _q(err[np.isfinite(err)], 90)
+    assert "120 of 200, 40 on the background" in line and "mm**." in line
+    # On a ground-truth store every trajectory is a part: the two figures are the same.
+    cap, work = gt_work
+    saved = evaluate_work(work)
+    assert saved["gt.error_m.actors.support"] == saved["gt.error_m.support"]
+    assert saved["gt.error_m.actors.p90"] == saved["gt.error_m.p90"]
+    assert saved["gt.error_m.background.support"] == 0
+    assert "On the figures and objects alone" in (work / "report" / "index.md").read_text()
+    mm = f"{1e3 * saved['gt.error_m.actors.median']:.1f} / {1e3 * saved['gt.error_m.actors.p90']:.1f} mm"
+    assert f"on the figures and objects {mm}" in "\n".join(headline(saved))
+
+
+def test_actor_error_without_actors():
+    from pointtraj.evaluate.study import _actor_error
+
+    metrics: dict = {}
+    line = _actor_error(np.array([0.01, np.nan]), np.array([-1, -2]), metrics)
+    assert "No point-frame" in line and metrics["gt.error_m.actors.support"] == 0
+    assert metrics["gt.error_m.background.support"] == 1
