@@ -8,11 +8,11 @@ mean over the edges it applies to. It applies between trajectories that both poo
 ``support_frames`` frames (shorter ones keep the whole affinity, so that their neighbours still
 correct them).
 
-For each work folder (synthetic: its judged trajectories and the report's label accuracy;
-``--bodyparts`` is the real capture's check, ``study_bodyparts.py``, which needs labels.npz and
-is not run here) it prints the accuracy of argmax view pooling and of the cut at each λ and
-contrast ``c`` (0: the library's labelling), on the work folder's own affinity graph and
-semantic map. The figures of ``docs/labeling.md``, "Contrast-sensitive smoothing".
+For each work folder of a synthetic capture it prints the report's label accuracy over the
+judged trajectories, of argmax view pooling and of the cut at each λ and contrast ``c`` (0: the
+library's labelling), on the work folder's own affinity graph and semantic map. (A real
+capture's check, ``study_bodyparts.py``, reads a work folder's labels.npz, which this study
+does not write.) The figures of ``docs/labeling.md``, "Contrast-sensitive smoothing".
 
 Usage::
 
