@@ -380,16 +380,17 @@ def _actor_error(err: np.ndarray, truth: np.ndarray, metrics: dict) -> str:
     """
     on = truth >= 0
     e = err[on & np.isfinite(err)]
-    metrics["gt.error_m.actors.median"] = _q(e, 50)
-    metrics["gt.error_m.actors.p90"] = _q(e, 90)
+    median, p90, background = _q(e, 50), _q(e, 90), int((truth == -1).sum())
+    metrics["gt.error_m.actors.median"] = median
+    metrics["gt.error_m.actors.p90"] = p90
     metrics["gt.error_m.actors.support"] = int(len(e))
-    metrics["gt.error_m.background.support"] = int((truth == -1).sum())
+    metrics["gt.error_m.background.support"] = background
     if not len(e):
         return "No point-frame lies on a trajectory of the figures and objects."
     return (
         "On the figures and objects alone (the point-frames of trajectories whose true label "
-        f"is a part; {int(on.sum())} of {len(err)}, {int((truth == -1).sum())} on the "
-        f"background): median **{_mm(_q(e, 50))} mm**, 90th percentile **{_mm(_q(e, 90))} mm**."
+        f"is a part; {int(on.sum())} of {len(err)}, {background} on the background): median "
+        f"**{_mm(median)} mm**, 90th percentile **{_mm(p90)} mm**."
     )
 
 
