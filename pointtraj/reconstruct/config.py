@@ -50,8 +50,14 @@ class ReconstructConfig:
     min_views_new : int
         Inlier views a newly matched point needs to start a trajectory; 3 rejects most false
         two-view matches (two views always agree with a wrong match along the epipolar line).
-    lk_window : int
-        Lucas-Kanade window size in pixels.
+    lk_window : int or None
+        Lucas-Kanade window size in pixels; None (the default) chooses it from the rig
+        (:func:`lk_window_for`): the smallest odd size that covers :data:`LK_WINDOW_M` of the
+        subject at the cameras' working distance, within 7-21 px. A window wider than the limb
+        it tracks lags behind it, held back by the static background in it: on the demo's
+        640x512 images (a limb 11-16 px across), 21 px let points slide 10 mm along their limb
+        over 20 frames (``docs/reconstruction.md``, "The Lucas-Kanade window and the subject's
+        size").
     lk_levels : int
         Lucas-Kanade pyramid levels above the full resolution.
     lk_start : {"projection", "observation"}
@@ -246,7 +252,7 @@ class ReconstructConfig:
     max_mean_error_px: float = 2.0
     min_views: int = 2
     min_views_new: int = 2
-    lk_window: int = 21
+    lk_window: int | None = None
     lk_levels: int = 3
     lk_start: Literal["projection", "observation"] = "projection"
     fb_max_px: float = 1.0
@@ -291,7 +297,7 @@ class ReconstructConfig:
             "max_mean_error_px": self.max_mean_error_px > 0,
             "min_views": self.min_views >= 2,
             "min_views_new": self.min_views_new >= self.min_views,
-            "lk_window": self.lk_window >= 5,
+            "lk_window": self.lk_window is None or self.lk_window >= 5,
             "lk_levels": self.lk_levels >= 0,
             "fb_max_px": self.fb_max_px > 0,
             "fb_skip_views": self.fb_skip_views == 0 or self.fb_skip_views >= 3,
@@ -372,8 +378,9 @@ class ReconstructConfig:
         ``views.confirm_incidence_deg`` from its camera count, ``sigma_px`` and its cameras'
         nearest-partner angle (:func:`confirm_off_reasons`; off, with a warning, where it
         gives reasons),
-        ``cover_visible = "auto"`` from its camera count, and ``match_skip_px`` and
-        ``match_every`` left out from ``cover_visible``; set ones are kept. The choice is
+        ``cover_visible = "auto"`` from its camera count, ``match_skip_px`` and
+        ``match_every`` left out from ``cover_visible``, and ``lk_window`` left out from the
+        subject's size in the images (:func:`lk_window_for`); set ones are kept. The choice is
         logged at INFO, with its reasons (:meth:`rig_notes` gives the same messages).
 
         Parameters
@@ -414,9 +421,8 @@ class ReconstructConfig:
         """:meth:`for_rig`'s choice and the messages that give it (``log``: the scale's)."""
         from ..scale import scale_lengths, scene_scale
 
-        cfg = scale_lengths(
-            self, scene_scale(rig, self.capture_volume, log=log), "[reconstruct]", log=log
-        )
+        cfg_scale = scene_scale(rig, self.capture_volume, log=log)
+        cfg = scale_lengths(self, cfg_scale, "[reconstruct]", log=log)
         notes: list[tuple[int, str]] = []
         m, d = cfg.matching, cfg.densify
         if (
@@ -429,11 +435,15 @@ class ReconstructConfig:
             and cfg.match_skip_px is not None
             and cfg.match_every is not None
             and cfg.views.confirm_incidence_deg is not None
+            and cfg.lk_window is not None
         ):
             return cfg, notes
         from .views import CONFIRM_INCIDENCE_DEG, retry_periods
 
         choice = rig_choices(rig)
+        window, px_per_m = lk_window_for(rig, cfg_scale.factor)
+        if cfg.lk_window is not None:
+            window = cfg.lk_window
         guided = choice.guided if m.guided is None else m.guided
         gms = choice.gms_threshold if m.gms_threshold is None else m.gms_threshold
         densify = choice.densify if d.enabled is None else d.enabled
@@ -483,11 +493,16 @@ class ReconstructConfig:
                 f"searches each camera every {every} frame{'' if every == 1 else 's'}); "
                 f"match_skip_px {how(f'{skip:g}', cfg.match_skip_px)}; match_every "
                 f"{how(match_every, cfg.match_every)}{_between(match_every, densify, d)}; new "
-                f"two-view points searched again facing their cameras {confirm_how}",
+                f"two-view points searched again facing their cameras {confirm_how}; "
+                f"lk_window {how(window, cfg.lk_window)} ({px_per_m:.0f} px a metre at the "
+                f"cameras' working distance, median: {LK_WINDOW_M * cfg_scale.factor * 100:.3g} "
+                f"cm is {px_per_m * LK_WINDOW_M * cfg_scale.factor:.1f} px, within "
+                f"{LK_WINDOW_RANGE[0]}-{LK_WINDOW_RANGE[1]})",
             )
         )
         cfg = replace(
             cfg,
+            lk_window=window,
             cover_visible=cover,
             match_skip_px=skip,
             match_every=match_every,
@@ -616,6 +631,51 @@ DENSE_RIG_CAMERAS = 16
 FEW_CAMERAS = 8
 #: The lenient GMS threshold (``pipelines/pose2sim_demo.toml`` measures 2 against 6).
 LENIENT_GMS = 2.0
+
+
+#: The length of the subject (m, at human scale; scaled with the rig by
+#: :func:`pointtraj.scale.scene_scale`) that the Lucas-Kanade window spans at the cameras'
+#: working distance: half a limb's width, so that the window moves with the limb rather than
+#: with the background behind it: 7 px on the demo's 640x512 ring, 15 on paper69 (1280x1024 at
+#: 1.6 m). Rounded up, so that real video's noise keeps as many pixels as the span allows: on
+#: Pose2Sim's 1920x1080 at 3.5 m the span is 19.4 px, and 19 px there lowered every body-part
+#: figure against 21 (``docs/reconstruction.md``, "The Lucas-Kanade window and the subject's
+#: size").
+LK_WINDOW_M = 0.04
+#: The odd window sizes (px) :func:`lk_window_for` chooses between: below 7 the flow's
+#: aperture loses texture, 21 is OpenCV's and the paper's usual window.
+LK_WINDOW_RANGE = (7, 21)
+
+
+def lk_window_for(rig: CameraRig, factor: float = 1.0) -> tuple[int, float]:
+    """The Lucas-Kanade window that spans :data:`LK_WINDOW_M` of the subject.
+
+    Parameters
+    ----------
+    rig : CameraRig
+    factor : float
+        The rig's length scale (:class:`pointtraj.scale.SceneScale` ``factor``).
+
+    Returns
+    -------
+    window : int
+        The smallest odd size that covers the span, within :data:`LK_WINDOW_RANGE`.
+    px_per_m : float
+        Pixels a metre at the cameras' working distance (median over cameras of the focal
+        length over :func:`~.connectivity.working_depths`).
+    """
+    from .connectivity import working_depths
+
+    focal = np.array([0.5 * (cam.K[0, 0] + cam.K[1, 1]) for cam in rig], float)
+    depth = working_depths(rig)
+    ok = np.isfinite(depth) & (depth > 0)
+    if not ok.any():
+        return LK_WINDOW_RANGE[1], float("nan")
+    px_per_m = float(np.median(focal[ok] / depth[ok]))
+    span = px_per_m * LK_WINDOW_M * factor
+    lo, hi = LK_WINDOW_RANGE
+    window = int(2 * np.ceil((span - 1) / 2) + 1) if np.isfinite(span) else hi
+    return int(min(max(window, lo), hi)), px_per_m
 
 
 @dataclass(frozen=True)

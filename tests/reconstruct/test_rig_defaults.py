@@ -17,21 +17,24 @@ from pointtraj.synth.presets import make_rig
 
 
 @pytest.mark.parametrize(
-    "preset, guided, gms, densify, cover",
+    "preset, guided, gms, densify, cover, window",
     [
         # the demo's 640x512 and ring12's 800x640, 44 and 35 degrees apart: densified at the
-        # medium images' NCC from every point
-        ("ring8", False, GMS_THRESHOLD, (0.8, "all"), "off"),
-        ("ring12", False, GMS_THRESHOLD, (0.8, "all"), "off"),
-        ("tiny4", False, GMS_THRESHOLD, None, "off"),  # 320x256, 87 degrees apart
-        ("paper69q", True, GMS_THRESHOLD, None, "on"),  # 320x256: small images
-        ("paper69", True, GMS_THRESHOLD, (0.9, "moving"), "on"),  # pipelines/paper69.toml's
+        # medium images' NCC from every point; 4 cm of the subject is 6.2-6.4 px there: 7
+        ("ring8", False, GMS_THRESHOLD, (0.8, "all"), "off", 7),
+        ("ring12", False, GMS_THRESHOLD, (0.8, "all"), "off", 7),
+        ("tiny4", False, GMS_THRESHOLD, None, "off", 7),  # 320x256, 87 degrees apart
+        ("paper69q", True, GMS_THRESHOLD, None, "on", 7),  # 320x256: small images
+        ("paper69", True, GMS_THRESHOLD, (0.9, "moving"), "on", 15),  # pipelines/paper69.toml's
         # large images, not a dense rig: the lower NCC, from new and moving points
-        ("lab4", True, 2.0, (0.8, "moving"), "off"),
-        ("narrow7", True, 2.0, (0.8, "moving"), "off"),
+        ("lab4", True, 2.0, (0.8, "moving"), "off", 13),
+        # a 4 mm scene: its window follows the scaled subject, as on its human-sized original
+        ("narrow7", True, 2.0, (0.8, "moving"), "off", 21),
     ],
 )
-def test_for_rig_chooses_from_baselines_and_resolution(preset, guided, gms, densify, cover, caplog):
+def test_for_rig_chooses_from_baselines_and_resolution(
+    preset, guided, gms, densify, cover, window, caplog
+):
     rig = make_rig(preset)
     with caplog.at_level("INFO", logger="pointtraj.reconstruct.config"):
         cfg = ReconstructConfig().for_rig(rig)
@@ -46,6 +49,7 @@ def test_for_rig_chooses_from_baselines_and_resolution(preset, guided, gms, dens
     assert cfg.match_skip_px == (0.5 * cfg.cover_px if cover == "on" else 0.0)
     # ... and match the whole images every other frame there (the moving regions in between)
     assert cfg.match_every == (2 if cover == "on" else 1)
+    assert cfg.lk_window == window and f"lk_window {window} (from the rig)" in caplog.text
     assert "rig-derived settings" in caplog.text and "from the rig" in caplog.text
     # `rig info` shows the same lines, taken from the same messages without logging them
     logged = [
@@ -75,6 +79,8 @@ def test_for_rig_keeps_what_is_set(caplog):
     assert cfg.matching.guided is False and cfg.matching.gms_threshold == 6.0
     assert cfg.densify.enabled is False
     assert "guided off (set)" in caplog.text and "densification off (set)" in caplog.text
+    # a window set in the file is kept
+    assert ReconstructConfig(lk_window=21).for_rig(make_rig("ring8")).lk_window == 21
     # densification's threshold and seeds set in the file are kept on a medium-image rig
     kept = ReconstructConfig(densify=DensifyConfig(min_ncc=0.85, seeds="new"))
     kept = kept.for_rig(make_rig("ring8")).densify

@@ -99,26 +99,34 @@ def _still_plane_frames(rig, velocity=(0.0, 0.0, 0.0)):
     ]
 
 
-def _track(rig, frames, features: int, still_px: float = 0.1):
-    cfg = ReconstructConfig(matching=MatchingConfig(num_features=features), still_px=still_px)
+def _track(rig, frames, features: int, still_px: float = 0.1, window: int | None = 21):
+    cfg = ReconstructConfig(
+        matching=MatchingConfig(num_features=features), still_px=still_px, lk_window=window
+    )
     tracker = Tracker(rig, cfg)
     return [tracker.step(t, f) for t, f in enumerate(frames)], tracker.flows
 
 
-def test_the_tracker_takes_still_views_from_one_step_and_moving_ones_from_the_flow():
+@pytest.mark.parametrize("window, most, p99", [(21, 2e-4, 1e-4), (None, 1e-3, 2e-4)])
+def test_the_tracker_takes_still_views_from_one_step_and_moving_ones_from_the_flow(
+    window, most, p99
+):
     """A still textured plane, then the same plane moving: the still one's views are all
-    taken from one step, with the same points as the pyramidal flow gives to within 0.2 mm;
-    the moving one's all get the pyramidal flow. The cameras track about 1,000 views on
-    480x360 images, above one view per 256 pixels."""
+    taken from one step, with the same points as the pyramidal flow gives to within 0.2 mm
+    with a 21 px window; with the rig's 9 px window, which averages less of the sensor noise,
+    to within 0.2 mm for 99 % of the points and 1 mm for all. The moving one's all get the
+    pyramidal flow. The cameras track about 1,000 views on 480x360 images, above one view per
+    256 pixels."""
     rig = plane_rig(angles=np.linspace(-20.0, 20.0, 4))
     frames = _still_plane_frames(rig)
-    recs0, flows0 = _track(rig, frames, 2000, still_px=0.0)
-    recs1, flows1 = _track(rig, frames, 2000)
+    recs0, flows0 = _track(rig, frames, 2000, still_px=0.0, window=window)
+    recs1, flows1 = _track(rig, frames, 2000, window=window)
     assert flows0["still"] == 0 and flows0["pyramidal"] > 5000
     assert flows1["still"] > 0.95 * flows0["pyramidal"]
     for r0, r1 in zip(recs0, recs1, strict=True):
         np.testing.assert_array_equal(r0.ids, r1.ids)
-        assert np.abs(r0.xyz - r1.xyz).max() < 2e-4
+        gap = np.abs(r0.xyz - r1.xyz).max(axis=1)
+        assert gap.max() < most and np.percentile(gap, 99) < p99
     moving = _track(rig, _still_plane_frames(rig, (0.01, 0.005, 0.0)), 2000)[1]
     assert moving["still"] == 0 and moving["pyramidal"] > 5000
 
