@@ -178,9 +178,10 @@ def cut_study(truth, l3d, count, g, lambdas, supports, seed: int) -> None:
 
 def part_motion_study(traj, truth, l3d, count, cfg, gt_work: Path) -> None:
     """Graph and cut with each trajectory's rotations taken from its true part's motion."""
+    from study_drift import part_motion  # (this script's folder is on sys.path)
+
     import pointtraj.affinity as affinity
     from pointtraj.evaluate.groundtruth import true_labels
-    from pointtraj.geometry import fit_rigid
     from pointtraj.labeling import LabelingConfig, label_trajectories
     from pointtraj.trajectories import Trajectories
     from pointtraj.workdir import WorkFolder
@@ -191,15 +192,7 @@ def part_motion_study(traj, truth, l3d, count, cfg, gt_work: Path) -> None:
     if source != "ground truth":
         raise SystemExit(f"{gt_work}: not the capture's ground-truth trajectories")
     K, T = int(max(gl.max(), truth.max())) + 1, traj.num_frames
-    part_rot = np.full((K, T, 3, 3), np.nan)
-    for t in range(1, T):
-        rows = gt.frame_rows(t)
-        rows = rows[gt.first_frame[gt.row_track[rows]] <= t - 1]
-        for c in range(K):
-            rr = rows[gl[gt.row_track[rows]] == c]
-            if rr.size >= 3:
-                a, b = gt.xyz[rr - 1][None], gt.xyz[rr][None]
-                part_rot[c, t] = fit_rigid(a, b, np.ones((1, rr.size))).rotation[0]
+    part_rot = part_motion(gt, gl, K, T)[0]
     P = traj.num_point_frames
     rot = np.full((P, 3, 3), np.nan, np.float32)
     tr, tf = traj.row_track, traj.row_frame
