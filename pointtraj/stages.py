@@ -261,7 +261,10 @@ def load_reconstruct_config(path: str | os.PathLike | None) -> ReconstructConfig
     Parameters
     ----------
     path : path-like or None
-        The file; None gives the defaults.
+        The file; None gives the defaults. A file with a ``[reconstruct]`` table is read from
+        that table. A pipeline file (``capture`` and ``work`` keys) without one leaves
+        reconstruction to its defaults, as every other command's ``--config`` does. Any other
+        file is read whole (``ReconstructConfig`` keys at the top level).
 
     Returns
     -------
@@ -279,7 +282,12 @@ def load_reconstruct_config(path: str | os.PathLike | None) -> ReconstructConfig
     if path is None:
         return ReconstructConfig()
     data = load_toml(path)
-    table = data.get("reconstruct", data) if isinstance(data.get("reconstruct"), dict) else data
+    if isinstance(data.get("reconstruct"), dict):
+        table = data["reconstruct"]
+    elif "capture" in data or "work" in data:  # a pipeline file's keys: the defaults
+        table = {}
+    else:
+        table = data
     try:
         return from_mapping(ReconstructConfig, table, where="[reconstruct]")
     except ValueError as exc:

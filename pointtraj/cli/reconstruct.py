@@ -27,7 +27,7 @@ __all__ = ["reconstruct", "gt_trajectories"]
     "config_path",
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
     default=None,
-    help="TOML with a [reconstruct] table (see ReconstructConfig).",
+    help="TOML with a [reconstruct] table (see ReconstructConfig); a pipeline file works.",
 )
 @click.option(
     "--restart", is_flag=True, help="Discard a previous run's state and clouds instead of resuming."
@@ -78,11 +78,13 @@ def reconstruct(
             progress=bars,
             executor=ex,
         )
+    # the frames holding points (a --frames range's, not the capture's num_frames)
     first = int(traj.first_frame.min()) if traj.num_trajectories else 0
+    end = int(traj.last_frame.max()) + 1 if traj.num_trajectories else 0
     median = float(np.median(traj.lengths)) if len(traj.lengths) else 0.0
     click.echo(
         f"{traj.num_trajectories} trajectories, {traj.num_point_frames} point-frames over "
-        f"frames {first}:{traj.num_frames} (median length {median:.0f}) -> {work}"
+        f"frames {first}:{end} (median length {median:.0f}) -> {work}"
     )
 
 

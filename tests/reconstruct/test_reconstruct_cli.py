@@ -100,6 +100,7 @@ def test_reconstruct_writes_the_work_folder_and_resumes(plane_capture: Path, tmp
     assert res.exit_code != 0 and "--restart" in res.output
     res = _run(plane_capture, "--out", work, "--config", other, "--frames", "1:3", "--restart")
     assert res.exit_code == 0, res.output
+    assert "over frames 1:3 " in res.output  # the range run, not the capture's 0:T
     part = Trajectories.load(work / "trajectories.npz")
     assert part.first_frame.min() == 1 and part.last_frame.max() == 2
     assert sorted(p.name for p in (work / "clouds").iterdir()) == ["000001.ply", "000002.ply"]

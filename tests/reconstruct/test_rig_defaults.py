@@ -158,3 +158,21 @@ def test_new_presets():
         [[x, y, z] for x in (-0.0015, 0.0015) for y in (-0.0015, 0.0015) for z in (-0.0015, 0.0015)]
     )
     assert narrow.project(subject).in_image.all()  # a 3 mm cube at the origin
+
+
+def test_config_file_forms(tmp_path):
+    """``reconstruct --config``: a ``[reconstruct]`` table, the top level, or a pipeline file
+    without the table (the defaults, as the other commands' ``--config``)."""
+    path = tmp_path / "r.toml"
+    path.write_text("[reconstruct]\nlk_window = 9\n[semantics]\neps_e = 0.2\n", encoding="utf-8")
+    assert load_reconstruct_config(path).lk_window == 9
+    path.write_text("lk_window = 11\n[densify]\nenabled = false\n", encoding="utf-8")
+    cfg = load_reconstruct_config(path)
+    assert cfg.lk_window == 11 and cfg.densify.enabled is False
+    path.write_text(
+        'name = "p"\ncapture = "cap"\nwork = "w"\n[semantics]\neps_e = 0.2\n', encoding="utf-8"
+    )
+    assert load_reconstruct_config(path) == ReconstructConfig()
+    path.write_text("lk_windw = 9\n", encoding="utf-8")  # a misspelt key is named
+    with pytest.raises(FileFormatError, match="lk_windw"):
+        load_reconstruct_config(path)
