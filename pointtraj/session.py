@@ -274,7 +274,11 @@ class Capture:
         if rig is None:
             rig_file = path / "rig.toml"
             if not rig_file.is_file():
-                raise FileFormatError(rig_file, "no rig.toml in the capture (or pass rig=)")
+                raise FileFormatError(
+                    rig_file,
+                    "no rig.toml in the capture: make the capture with `pointtraj capture`, or "
+                    "write the calibration there with `pointtraj rig convert`",
+                )
             rig = load_rig(rig_file, fmt="toml")
         elif not isinstance(rig, CameraRig):
             rig = load_rig(rig)
