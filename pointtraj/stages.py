@@ -262,7 +262,7 @@ def load_reconstruct_config(path: str | os.PathLike | None) -> ReconstructConfig
     ----------
     path : path-like or None
         The file; None gives the defaults. A file with a ``[reconstruct]`` table is read from
-        that table. A pipeline file (``capture`` and ``work`` keys) without one leaves
+        that table. A pipeline file (a ``capture`` or ``work`` key) without one leaves
         reconstruction to its defaults, as every other command's ``--config`` does. Any other
         file is read whole (``ReconstructConfig`` keys at the top level).
 
