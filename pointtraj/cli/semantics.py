@@ -34,9 +34,17 @@ def _parse_options(options: tuple[str, ...]) -> dict[str, Any]:
     "--recognizer",
     "-r",
     "recognizer_name",
-    required=True,
+    default=None,
     help="Recogniser name (simulated, precomputed, onnx-segmentation, onnx-detection, "
-    "body-parts, object-detector).",
+    "body-parts, object-detector, combined); required unless --config names one.",
+)
+@click.option(
+    "--config",
+    "config_path",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help="TOML with a [semantics] table (SemanticsStageConfig; a pipeline file works); the "
+    "options given here override it, and -o options are added to its options.",
 )
 @click.option(
     "--capture",
@@ -73,7 +81,8 @@ def _parse_options(options: tuple[str, ...]) -> dict[str, Any]:
 @executor_options
 def semantics(
     work: Path,
-    recognizer_name: str,
+    recognizer_name: str | None,
+    config_path: Path | None,
     capture: Path | None,
     options: tuple[str, ...],
     poolings: tuple[str, ...],
@@ -84,11 +93,28 @@ def semantics(
     scheduler: str | None,
 ) -> None:
     """Build WORK/semantic_map.npz: recognise every image, view-pool, average over time."""
+    import dataclasses
+
+    from ..config import load_toml
     from ..semantics.semantic_map import SemanticsConfig
     from ..stages import SemanticsStageConfig, ground_truth_work, semantics_work
     from ..workdir import WorkFolder
-    from .common import executor_config, open_cli_executor, progress_bars
+    from .common import config_from, executor_config, open_cli_executor, progress_bars
 
+    table = load_toml(config_path).get("semantics", {}) if config_path is not None else {}
+    if recognizer_name is None and "recognizer" not in table:
+        where = f"{config_path} has no [semantics] recognizer" if config_path else "no --config"
+        raise click.UsageError(f"give the recogniser with --recognizer / -r ({where})")
+    overrides = {
+        "recognizer": recognizer_name,
+        # without a file, the two poolings of the paper (a file's table, or every pooling)
+        "poolings": tuple(poolings) or (None if config_path else SemanticsConfig().poolings),
+        "eps_e": eps_e,
+        "background_vote": background_vote,
+    }
+    config = config_from(SemanticsStageConfig, config_path, "semantics", overrides)
+    if options:
+        config = dataclasses.replace(config, options={**config.options, **_parse_options(options)})
     wf = WorkFolder(work)
     capture = capture or wf.capture_path()
     if capture is None:
@@ -100,13 +126,6 @@ def semantics(
                 "--from-ground-truth for a synthetic capture)"
             )
         ground_truth_work(work, capture)
-    config = SemanticsStageConfig(
-        recognizer=recognizer_name,
-        options=_parse_options(options),
-        poolings=tuple(poolings) or SemanticsConfig().poolings,
-        **({"eps_e": eps_e} if eps_e is not None else {}),
-        **({"background_vote": background_vote} if background_vote is not None else {}),
-    )
     with open_cli_executor(executor_config(workers, scheduler)) as ex, progress_bars() as bars:
         smap = semantics_work(work, config, capture, progress=bars, executor=ex)
     p = smap.poolings[0]

@@ -64,3 +64,31 @@ def test_from_ground_truth_and_errors(capture, tmp_path):
     assert result.exit_code != 0 and "missing confidence map of camera" in result.output
     result = runner.invoke(main, ["semantics", str(tmp_path / "none"), "--recognizer", "simulated"])
     assert result.exit_code != 0 and "--capture" in result.output
+
+
+def test_semantics_reads_a_pipeline_file(capture, tmp_path):
+    """``--config``: the pipeline file's [semantics] table, with the options given here over it
+    and -o options added to its recogniser options."""
+    runner = CliRunner()
+    work = tmp_path / "w3"
+    assert runner.invoke(main, ["gt-trajectories", str(capture), "--out", str(work)]).exit_code == 0
+    pipeline = tmp_path / "p.toml"
+    pipeline.write_text(
+        f'capture = "{capture}"\nwork = "{work}"\n[semantics]\nrecognizer = "simulated"\n'
+        'options = { noise = "none" }\npoolings = ["view", "max"]\neps_e = 0.2\n',
+        encoding="utf-8",
+    )
+    args = ["semantics", str(work), "--config", str(pipeline), "-o", "downsample=2"]
+    result = runner.invoke(main, [*args, "--eps-e", "0.3"])
+    assert result.exit_code == 0, result.output
+    smap = SemanticMap.load(work / "semantic_map.npz")
+    assert smap.recognizer == "simulated" and smap.poolings == ("view", "max")
+    assert smap.recognizer_options == {"noise": "none", "downsample": 2}
+    assert smap.eps_e == 0.3  # the command line over the file
+    # a file without the recogniser, and no -r: said, not the simulated one by default
+    pipeline.write_text(f'capture = "{capture}"\nwork = "{work}"\n', encoding="utf-8")
+    result = runner.invoke(main, ["semantics", str(work), "--config", str(pipeline)])
+    assert result.exit_code != 0 and "--recognizer" in result.output
+    assert "has no [semantics] recognizer" in result.output
+    result = runner.invoke(main, ["semantics", str(work)])
+    assert result.exit_code != 0 and "--recognizer" in result.output
