@@ -63,7 +63,8 @@ def _parse_options(options: tuple[str, ...]) -> dict[str, Any]:
     "--pooling",
     "poolings",
     multiple=True,
-    help="Pooling method(s); the first is the map's default [default: view, average].",
+    help="Pooling method(s); the first is the map's default [default: view, average; with "
+    "--config, the file's, or every pooling as `pointtraj run` uses them].",
 )
 @click.option("--eps-e", type=float, default=None, help="Visibility threshold ε_e [default: 0.1].")
 @click.option(
