@@ -72,7 +72,10 @@ def config_from(
             doc = load_toml(path)
         except PointtrajError as exc:  # unreadable or invalid TOML: one line, no traceback
             raise click.UsageError(str(exc)) from None
-        data = dict(doc.get(table, {}))
+        section = doc.get(table, {})
+        if not isinstance(section, dict):
+            raise click.UsageError(f"{path}: [{table}] must be a table, got {section!r}")
+        data = dict(section)
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})
     try:
         return from_mapping(cls, data, where=f"{path or 'options'} [{table}]")

@@ -103,7 +103,7 @@ def semantics(
     from .common import config_from, executor_config, open_cli_executor, progress_bars
 
     table = load_toml(config_path).get("semantics", {}) if config_path is not None else {}
-    if recognizer_name is None and "recognizer" not in table:
+    if recognizer_name is None and not (isinstance(table, dict) and "recognizer" in table):
         where = f"{config_path} has no [semantics] recognizer" if config_path else "no --config"
         raise click.UsageError(f"give the recogniser with --recognizer / -r ({where})")
     overrides = {

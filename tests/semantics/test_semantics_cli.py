@@ -92,3 +92,7 @@ def test_semantics_reads_a_pipeline_file(capture, tmp_path):
     assert "has no [semantics] recognizer" in result.output
     result = runner.invoke(main, ["semantics", str(work)])
     assert result.exit_code != 0 and "--recognizer" in result.output
+    pipeline.write_text("semantics = 3\n", encoding="utf-8")  # not a table: one line
+    result = runner.invoke(main, ["semantics", str(work), "-r", "simulated", "--config", pipeline])
+    assert result.exit_code != 0 and "[semantics] must be a table" in result.output
+    assert "Traceback" not in result.output
