@@ -40,7 +40,11 @@ F = TypeVar("F")
 
 
 def config_from(
-    cls: type[T], path: Path | None, table: str, overrides: Mapping[str, Any] | None = None
+    cls: type[T],
+    path: Path | None,
+    table: str,
+    overrides: Mapping[str, Any] | None = None,
+    required: Mapping[str, str] | None = None,
 ) -> T:
     """Config dataclass ``cls`` from table ``[table]`` of a TOML file plus command-line options.
 
@@ -54,6 +58,9 @@ def config_from(
         The table read from it (a missing table is empty).
     overrides : mapping, optional
         Option name -> value; None values (options not given) are left out.
+    required : mapping, optional
+        Key -> the option that gives it: keys that the file's table or the options must set
+        (their defaults are no choice for the user to leave to the command).
 
     Returns
     -------
@@ -62,7 +69,8 @@ def config_from(
     Raises
     ------
     click.UsageError
-        If the file is unreadable or invalid TOML, or a key or value is wrong (one line).
+        If the file is unreadable or invalid TOML, a key or value is wrong, or a ``required``
+        key is set by neither (one line).
     """
     from ..config import from_mapping, load_toml
 
@@ -77,6 +85,10 @@ def config_from(
             raise click.UsageError(f"{path}: [{table}] must be a table, got {section!r}")
         data = dict(section)
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    for key, option in (required or {}).items():
+        if key not in data:
+            where = f"{path} has no [{table}] {key}" if path is not None else "no --config"
+            raise click.UsageError(f"give the {key} with {option} ({where})")
     try:
         return from_mapping(cls, data, where=f"{path or 'options'} [{table}]")
     except ValueError as exc:

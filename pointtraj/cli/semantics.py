@@ -96,16 +96,11 @@ def semantics(
     """Build WORK/semantic_map.npz: recognise every image, view-pool, average over time."""
     import dataclasses
 
-    from ..config import load_toml
     from ..semantics.semantic_map import SemanticsConfig
     from ..stages import SemanticsStageConfig, ground_truth_work, semantics_work
     from ..workdir import WorkFolder
     from .common import config_from, executor_config, open_cli_executor, progress_bars
 
-    table = load_toml(config_path).get("semantics", {}) if config_path is not None else {}
-    if recognizer_name is None and not (isinstance(table, dict) and "recognizer" in table):
-        where = f"{config_path} has no [semantics] recognizer" if config_path else "no --config"
-        raise click.UsageError(f"give the recogniser with --recognizer / -r ({where})")
     overrides = {
         "recognizer": recognizer_name,
         # without a file, the two poolings of the paper (a file's table, or every pooling)
@@ -113,7 +108,13 @@ def semantics(
         "eps_e": eps_e,
         "background_vote": background_vote,
     }
-    config = config_from(SemanticsStageConfig, config_path, "semantics", overrides)
+    config = config_from(
+        SemanticsStageConfig,
+        config_path,
+        "semantics",
+        overrides,
+        required={"recognizer": "--recognizer / -r"},
+    )
     if options:
         config = dataclasses.replace(config, options={**config.options, **_parse_options(options)})
     wf = WorkFolder(work)
