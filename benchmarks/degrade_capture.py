@@ -32,6 +32,8 @@ from pathlib import Path
 import numpy as np
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+#: Written into OUT, so that a later run replaces only a folder this script wrote.
+MARKER = ".degraded-capture"
 
 
 def scaled_rig(rig, scale: float):
@@ -72,7 +74,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("capture", type=Path)
-    ap.add_argument("out", type=Path, help="replaced if it exists")
+    ap.add_argument("out", type=Path, help="a new folder, or one this script wrote (replaced)")
     ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--blur", type=float, default=0.0, help="Gaussian sigma, px")
     ap.add_argument("--noise", type=float, default=0.0, help="Gaussian sigma, grey levels")
@@ -84,6 +86,9 @@ def main() -> None:
         ap.error("--scale in (0, 1], --blur and --noise >= 0, --jpeg in 1-100")
     if args.out.resolve() == args.capture.resolve():
         ap.error("OUT must not be CAPTURE")
+    if args.out.exists() and not (args.out / MARKER).is_file():
+        if not args.out.is_dir() or any(args.out.iterdir()):
+            ap.error(f"{args.out}: exists and was not written by this script; not replaced")
     frames, videos = (args.capture / "frames").resolve(), (args.capture / "videos").resolve()
 
     def skip(folder: str, names: list[str]) -> set[str]:
@@ -97,6 +102,7 @@ def main() -> None:
 
     shutil.rmtree(args.out, ignore_errors=True)
     shutil.copytree(args.capture, args.out, ignore=skip)
+    (args.out / MARKER).write_text("written by benchmarks/degrade_capture.py\n")
     rng = np.random.default_rng(args.seed)
     written = 0
     for cam in sorted(p for p in frames.iterdir() if p.is_dir()) if frames.is_dir() else []:
