@@ -74,7 +74,11 @@ class DensifyConfig:
     patch_size : int
         Samples per side of the square patch.
     patch_spacing_px : float
-        Spacing of the patch's samples in the reference image.
+        Spacing of the patch's samples in the reference image. The default 2 px makes a
+        7 x 7 patch 12 px across: 8 cm of the demo's subject, 2.5 cm of a person filmed at
+        2 MP from 3 m. On real video at that scale 5 px gave better points
+        (``pipelines/pose2sim_demo.toml``; ``docs/real_captures.md``, "Densification's patch on
+        real video"); on fine-grained rendered texture it gave fewer and worse ones.
     min_ncc : float or None
         Mean NCC a candidate needs at its best depth; also what a partner view needs to observe
         the new point. None (the default, the key left out): chosen from the rig
