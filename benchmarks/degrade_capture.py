@@ -37,15 +37,14 @@ MARKER = ".degraded-capture"
 
 
 def scaled_rig(rig, scale: float):
-    """The rig as filmed at ``scale`` times the image size (pixel centres kept)."""
+    """The rig as filmed at ``scale`` times the image size (pixel centres kept; each camera by
+    :func:`pointtraj.export.rerun.scaled_camera`, whose size rounding :func:`degrade` follows)."""
     from pointtraj.camera import CameraRig
+    from pointtraj.export.rerun import scaled_camera
 
     cams = []
     for cam in rig:
-        K = cam.K.astype(float).copy()
-        K[:2, :2] *= scale
-        K[:2, 2] = (K[:2, 2] + 0.5) * scale - 0.5
-        size = (int(cam.size[0] * scale), int(cam.size[1] * scale))
+        K, size = scaled_camera(cam, scale)
         cams.append(dataclasses.replace(cam, K=K, size=size))
     return CameraRig(cams)
 
@@ -57,7 +56,7 @@ def degrade(image: np.ndarray, args, rng: np.random.Generator) -> np.ndarray:
     h, w = image.shape[:2]
     out = image
     if args.scale != 1.0:
-        size = (int(w * args.scale), int(h * args.scale))
+        size = (max(1, round(w * args.scale)), max(1, round(h * args.scale)))  # as scaled_camera
         out = cv2.resize(out, size, interpolation=cv2.INTER_AREA)
     out = out.astype(np.float32)
     if args.blur > 0:
@@ -115,7 +114,7 @@ def main() -> None:
             target = args.out / "frames" / cam.name / f.name
             cv2.imwrite(str(target), degrade(image, args, rng), params)
             written += 1
-    for video in sorted((args.capture / "videos").glob("*.mp4")):
+    for video in sorted(videos.glob("*.mp4")):
         src = cv2.VideoCapture(str(video))
         fps, sink = src.get(cv2.CAP_PROP_FPS), None
         while True:
