@@ -24,6 +24,7 @@ from pointtraj.examples import (
     measure_image_mapping,
 )
 from pointtraj.labelset import LabelSet
+from pointtraj.reconstruct.texture import texture_patch_spacing
 from pointtraj.session import Capture
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
@@ -305,6 +306,9 @@ def test_pose2sim_capture(tmp_path, pose2sim_wheel, caplog):
     proj = cap.rig.project(np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 1.6]]))
     assert proj.in_image.all()
     assert LabelSet.load(cap.labels_path) == LabelSet.default()
+    # Densification's patch chosen from the texture of the first frame: 5 px, the spacing
+    # pipelines/pose2sim_demo.toml was measured best with (docs/real_captures.md)
+    assert texture_patch_spacing([cap.read(n, 0) for n in cap.camera_names])[0] == 5.0
 
 
 @pytest.mark.slow
@@ -330,3 +334,4 @@ def test_pose2sim_multi_person_capture(tmp_path, pose2sim_wheel):
         np.testing.assert_allclose(cam.C, ref.rig[cam.name].C, atol=1e-12)
     assert not np.array_equal(cap.read("cam03", 50), ref.read("cam03", 50))  # other videos
     assert (out / "source" / "extrinsics" / "cam01_ext.png").is_file()
+    assert texture_patch_spacing([cap.read(n, 0) for n in cap.camera_names])[0] == 5.0

@@ -44,6 +44,7 @@ from ..camera import CameraRig
 from ..errors import ValidationError, check_array
 from ..geometry import axis_angles, finite_rows
 from ..scale import SceneLength
+from .texture import PATCH_SPACINGS
 
 logger = logging.getLogger(__name__)
 
@@ -73,12 +74,16 @@ class DensifyConfig:
         Depth hypotheses in that range (odd keeps ``z0`` itself).
     patch_size : int
         Samples per side of the square patch.
-    patch_spacing_px : float
-        Spacing of the patch's samples in the reference image. The default 2 px makes a
-        7 x 7 patch 12 px across: 8 cm of the demo's subject, 2.5 cm of a person filmed at
-        2 MP from 3 m. On real video at that scale 5 px gave better points
-        (``pipelines/pose2sim_demo.toml``; ``docs/real_captures.md``, "Densification's patch on
-        real video"); on fine-grained rendered texture it gave fewer and worse ones.
+    patch_spacing_px : float or None
+        Spacing of the patch's samples in the reference image. None (the default, the key left
+        out): chosen by the reconstruction from the first frame's texture
+        (:func:`~.texture.texture_patch_spacing`): the smallest of 2-6 px whose patch holds 0.7
+        of the contrast of a patch twice as wide. That is 2 px (a 7 x 7 patch 12 px across) on
+        rendered texture, fine-grained to the pixel, and 4-6 px on real video, whose contrast
+        keeps growing with scale: on the Pose2Sim demo (2.5 cm of the person in 12 px) 5 px
+        gave better points than 2 (``docs/real_captures.md``, "Densification's patch on real
+        video"), and on a rendered twin of that rig 2 px gave better ones than 4 or 5.
+        Functions given this config directly read None as 2 px (:attr:`spacing_px`).
     min_ncc : float or None
         Mean NCC a candidate needs at its best depth; also what a partner view needs to observe
         the new point. None (the default, the key left out): chosen from the rig
@@ -100,7 +105,7 @@ class DensifyConfig:
     veto_angle_deg : float
         See ``veto_ncc``.
     inner_ncc : float
-        NCC that the 3 x 3 centre of the patch (spacing ``patch_spacing_px / 2``) needs in every
+        NCC that the 3 x 3 centre of the patch (spacing :attr:`spacing_px` / 2) needs in every
         observing partner at the chosen depth. A patch across an occluding edge matches on the
         nearer surface's texture while its centre lies on the farther surface ("edge
         fattening"); -1 turns the test off.
@@ -149,7 +154,7 @@ class DensifyConfig:
     depth_range_m: float = SceneLength(0.08)
     depth_steps: int = 33
     patch_size: int = 7
-    patch_spacing_px: float = 2.0
+    patch_spacing_px: float | None = None
     min_ncc: float | None = None
     min_margin: float = 0.1
     peak_width: int = 3
@@ -172,7 +177,7 @@ class DensifyConfig:
             "depth_range_m": self.depth_range_m > 0,
             "depth_steps": self.depth_steps >= 3,
             "patch_size": self.patch_size >= 3,
-            "patch_spacing_px": self.patch_spacing_px > 0,
+            "patch_spacing_px": self.patch_spacing_px is None or self.patch_spacing_px > 0,
             "min_ncc": self.min_ncc is None or -1 <= self.min_ncc <= 1,
             "min_margin": self.min_margin >= 0,
             "peak_width": 1 <= self.peak_width < self.depth_steps // 2,
@@ -194,6 +199,12 @@ class DensifyConfig:
             raise ValidationError(
                 f'DensifyConfig.seeds must be "moving", "new" or "all", not {self.seeds!r}'
             )
+
+    @property
+    def spacing_px(self) -> float:
+        """``patch_spacing_px``, or :data:`~.texture.PATCH_SPACINGS`' first (2 px) where it is
+        left to the images and they were not measured."""
+        return PATCH_SPACINGS[0] if self.patch_spacing_px is None else self.patch_spacing_px
 
     @property
     def between_seed_px(self) -> float:
@@ -487,9 +498,9 @@ def densify(
     angles = axis_angles(rig)
     np.fill_diagonal(angles, np.inf)
     half = (cfg.patch_size - 1) / 2
-    off = (np.arange(cfg.patch_size) - half) * cfg.patch_spacing_px
+    off = (np.arange(cfg.patch_size) - half) * cfg.spacing_px
     offsets = np.stack(np.meshgrid(off, off), axis=-1).reshape(-1, 2)  # (P, 2)
-    margin = half * cfg.patch_spacing_px + 1
+    margin = half * cfg.spacing_px + 1
     dz = np.linspace(-cfg.depth_range_m, cfg.depth_range_m, cfg.depth_steps)  # (D,)
     found: list[np.ndarray] = []
     subsets: dict[int, tuple[np.ndarray, CameraRig]] = {}
@@ -802,7 +813,7 @@ def _densify_camera(
     if cfg.inner_ncc > -1 and accept.any():
         # the centre of the patch must match too: a patch across an occluding edge matches on
         # the nearer surface's texture while its centre lies on the farther one
-        k = np.arange(-1, 2) * max(cfg.patch_spacing_px / 2, 1.0)
+        k = np.arange(-1, 2) * max(cfg.spacing_px / 2, 1.0)
         inner = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2)
         idx = np.flatnonzero(accept)
         ipatch = cand[idx, None, :] + inner[None]

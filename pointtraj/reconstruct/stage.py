@@ -33,6 +33,7 @@ from .config import ReconstructConfig
 from .framestore import FrameStore, assemble_records
 from .stitch import stitch_trajectories
 from .survive import trim_one_view_tails
+from .texture import describe_texture_scale, texture_cameras, texture_patch_spacing
 from .track import FrameRecord, Tracker, TrackState, config_edges
 
 __all__ = [
@@ -410,7 +411,7 @@ def reconstruct_capture(
             f"frames {frames.start}:{frames.stop} must be a non-empty range within [0, {T})"
         )
     # the rig-derived settings and camera pairs, chosen once here, where their log is seen
-    cfg = cfg.for_rig(rig)
+    cfg = with_texture_choices(cfg.for_rig(rig), capture, frames.start)
     edges = config_edges(rig, cfg)
     chunks = plan_chunks(frames, cfg.chunk_frames, cfg.chunk_overlap)
     if len(chunks) == 1:
@@ -438,6 +439,37 @@ def reconstruct_capture(
                 final.write_frame_ply(t, work / "clouds" / f"{t:06d}.ply", visibility_form=form)
     final.save(work / "trajectories.npz")
     return final
+
+
+def with_texture_choices(cfg: ReconstructConfig, capture, frame: int) -> ReconstructConfig:
+    """``cfg`` with densification's patch spacing chosen from a frame's texture where it is
+    left out (:func:`~.texture.texture_patch_spacing`), and the choice logged.
+
+    Parameters
+    ----------
+    cfg : ReconstructConfig
+        After :meth:`~.config.ReconstructConfig.for_rig` (densification on or off).
+    capture : pointtraj.session.Capture
+        With ``camera_names`` and ``read(camera, frame)``.
+    frame : int
+        The frame whose images are measured (the first one reconstructed).
+
+    Returns
+    -------
+    ReconstructConfig
+        Unchanged where densification is off or its spacing is set.
+    """
+    d = cfg.densify
+    if not d.enabled or d.patch_spacing_px is not None:
+        return cfg
+    names = list(capture.camera_names)
+    images = [capture.read(names[c], frame) for c in texture_cameras(len(names))]
+    spacing, scale = texture_patch_spacing(images, d.patch_size)
+    logger.info(
+        "densification's patch ([reconstruct.densify] patch_spacing_px): samples %s",
+        describe_texture_scale(scale, spacing),
+    )
+    return dataclasses.replace(cfg, densify=dataclasses.replace(d, patch_spacing_px=spacing))
 
 
 def _reconstruct_chunks(
