@@ -25,7 +25,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import shutil
 from pathlib import Path
 
@@ -38,15 +37,10 @@ MARKER = ".degraded-capture"
 
 def scaled_rig(rig, scale: float):
     """The rig as filmed at ``scale`` times the image size (pixel centres kept; each camera by
-    :func:`pointtraj.export.rerun.scaled_camera`, whose size rounding :func:`degrade` follows)."""
+    :meth:`pointtraj.camera.Camera.resized`, whose size rounding :func:`degrade` follows)."""
     from pointtraj.camera import CameraRig
-    from pointtraj.export.rerun import scaled_camera
 
-    cams = []
-    for cam in rig:
-        K, size = scaled_camera(cam, scale)
-        cams.append(dataclasses.replace(cam, K=K, size=size))
-    return CameraRig(cams)
+    return CameraRig([cam.resized(scale) for cam in rig])
 
 
 def degrade(image: np.ndarray, args, rng: np.random.Generator) -> np.ndarray:
@@ -56,7 +50,7 @@ def degrade(image: np.ndarray, args, rng: np.random.Generator) -> np.ndarray:
     h, w = image.shape[:2]
     out = image
     if args.scale != 1.0:
-        size = (max(1, round(w * args.scale)), max(1, round(h * args.scale)))  # as scaled_camera
+        size = (max(1, round(w * args.scale)), max(1, round(h * args.scale)))  # as Camera.resized
         out = cv2.resize(out, size, interpolation=cv2.INTER_AREA)
     out = out.astype(np.float32)
     if args.blur > 0:

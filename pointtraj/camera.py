@@ -249,6 +249,34 @@ class Camera:
         """A copy renamed."""
         return Camera(name, self.K, self.R, self.C, self.size, self.dist)
 
+    def resized(self, scale: float) -> Camera:
+        """The camera of its images resized by ``scale`` (as OpenCV's ``resize`` does).
+
+        The size is rounded to whole pixels (at least 1), and pixel centres map as ``resize``
+        maps them: ``u' = (u + 0.5) s - 0.5``, with ``s`` the rounded size's ratio on each
+        axis. The distortion, in normalised coordinates, is unchanged.
+
+        Parameters
+        ----------
+        scale : float
+            Positive.
+
+        Returns
+        -------
+        Camera
+        """
+        if not (np.isfinite(scale) and scale > 0):
+            raise ValidationError(f"camera {self.name!r}: scale must be positive, got {scale!r}")
+        w, h = self.size
+        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        sx, sy = size[0] / w, size[1] / h
+        K = np.array(self.K, np.float64)
+        K[0, :] *= sx
+        K[1, :] *= sy
+        K[0, 2] += 0.5 * sx - 0.5
+        K[1, 2] += 0.5 * sy - 0.5
+        return Camera(self.name, K, self.R, self.C, size, self.dist)
+
     def project(self, points: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Project world points into this camera.
 

@@ -346,3 +346,25 @@ def test_undistortion_without_lenses_gives_the_pixels_back():
         rig.K, 1, 2
     )
     np.testing.assert_allclose(out, trip[..., :2], atol=1e-9)
+
+
+@pytest.mark.parametrize("dist", [np.zeros(8), np.array([-0.2, 0.05, 0.001, -0.002, 0.0])])
+def test_resized_projects_like_resized_pixels(dist):
+    """A camera resized by s sees a point where OpenCV's resize moves its pixel:
+    ``u' = (u + 0.5) s - 0.5`` (the rounded size's ratio on each axis)."""
+    cam = Camera.look_at("c", [0, -3, 1], [0, 0, 1], size=(640, 480), focal=500.0)
+    cam = Camera(cam.name, cam.K, cam.R, cam.C, cam.size, dist)
+    X = np.array([[0.1, 0.2, 1.0], [-0.3, 0.1, 1.4]])
+    uv, _, _ = cam.project(X)
+    for s in (0.25, 0.5, 2.0):
+        small = cam.resized(s)
+        assert small.size == (round(640 * s), round(480 * s)) and small.name == "c"
+        np.testing.assert_allclose(small.project(X)[0], (uv + 0.5) * s - 0.5, atol=1e-9)
+        np.testing.assert_array_equal(small.dist, cam.dist)
+    odd = Camera.look_at("o", [0, -3, 1], [0, 0, 1], size=(641, 481), focal=500.0)
+    half = odd.resized(0.5)  # 320.5 x 240.5 rounds to 320 x 240: each axis by its own ratio
+    assert half.size == (320, 240)
+    np.testing.assert_allclose(half.K[0, 0], 500.0 * 320 / 641)
+    np.testing.assert_allclose(half.K[1, 1], 500.0 * 240 / 481)
+    with pytest.raises(ValidationError, match="scale must be positive"):
+        cam.resized(0.0)

@@ -22,7 +22,6 @@ from pointtraj.export.rerun import (
     RerunConfig,
     cycle_colors,
     export_rerun,
-    scaled_camera,
     tail_rows,
     write_recording,
 )
@@ -141,19 +140,6 @@ def test_tail_rows_match_dense_positions():
         assert set(strip_track) == set(track[traj.first_frame[track] < t])
 
 
-def test_scaled_camera_projects_like_resized_pixels():
-    from pointtraj.camera import Camera
-
-    cam = Camera.look_at("c", [0, -3, 1], [0, 0, 1], size=(640, 480), focal=500.0)
-    X = np.array([[0.1, 0.2, 1.0], [-0.3, 0.1, 1.4]])
-    uv, _, _ = cam.project(X)
-    K, size = scaled_camera(cam, 0.25)
-    assert size == (160, 120)
-    Xc = (X - cam.C) @ cam.R.T
-    uvs = (Xc @ K.T)[:, :2] / Xc[:, 2:]
-    np.testing.assert_allclose(uvs, (uv + 0.5) * 0.25 - 0.5, atol=1e-9)
-
-
 def test_tiny_work_folder_reads_back(tiny_reference, tmp_path):
     """Points, colours, class ids, confidences, tails, cameras and images, frame by frame."""
     work = tiny_reference / "work"
@@ -220,7 +206,7 @@ def test_tiny_work_folder_reads_back(tiny_reference, tmp_path):
             np.reshape(pose["Transform3D:mat3x3"], (3, 3)).T, cam.R.T, atol=1e-6
         )
         pin = static[f"/world/cameras/{cam.name}/image"]
-        K, size = scaled_camera(cam, 0.5)
+        K, size = cam.resized(0.5).K, cam.resized(0.5).size
         assert tuple(pin["Pinhole:resolution"]) == size
         np.testing.assert_allclose(
             np.reshape(pin["Pinhole:image_from_camera"], (3, 3)).T, K, atol=1e-4

@@ -42,7 +42,6 @@ __all__ = [
     "export_rerun",
     "write_recording",
     "tail_rows",
-    "scaled_camera",
     "cycle_colors",
     "NO_CLASS",
     "PERSON_COLORS",
@@ -232,33 +231,6 @@ def _strips_array(rr: Any, xyz: np.ndarray, offsets: np.ndarray) -> Any:
         pa.array(np.ascontiguousarray(xyz, np.float32).reshape(-1)), type=kind.value_type
     )
     return pa.ListArray.from_arrays(pa.array(offsets.astype(np.int32)), inner, type=kind)
-
-
-def scaled_camera(camera: Camera, scale: float) -> tuple[np.ndarray, tuple[int, int]]:
-    """A camera's intrinsics and image size after resizing its images by ``scale``.
-
-    Pixel centres map as OpenCV's ``resize`` maps them: ``u' = (u + 0.5) s - 0.5``.
-
-    Parameters
-    ----------
-    camera : Camera
-    scale : float
-
-    Returns
-    -------
-    K : (3, 3) float64 ndarray
-    size : (int, int)
-        ``(width, height)``.
-    """
-    w, h = camera.size
-    size = (max(1, round(w * scale)), max(1, round(h * scale)))
-    sx, sy = size[0] / w, size[1] / h
-    K = np.array(camera.K, np.float64)
-    K[0, :] *= sx
-    K[1, :] *= sy
-    K[0, 2] += 0.5 * sx - 0.5
-    K[1, 2] += 0.5 * sy - 0.5
-    return K, size
 
 
 def write_recording(
@@ -492,7 +464,8 @@ def _log_static(
             static=True,
         )
     for cam in cameras:
-        K, (w, h) = scaled_camera(cam, cfg.image_scale)
+        pinhole = cam.resized(cfg.image_scale)
+        K, (w, h) = pinhole.K, pinhole.size
         entity = _entity(cam.name)
         # Camera to world: X_w = R^T X_c + C (Camera.R is world to camera).
         rec.log(
@@ -514,7 +487,7 @@ def _log_image(
     import cv2
 
     img = capture.read(camera.name, t)  # (H, W, 3) uint8 RGB
-    _, (w, h) = scaled_camera(camera, cfg.image_scale)
+    w, h = camera.resized(cfg.image_scale).size
     if (img.shape[1], img.shape[0]) != (w, h):
         img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
     rec.log(
