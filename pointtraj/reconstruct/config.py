@@ -542,10 +542,10 @@ def confirm_off_reasons(cfg: ReconstructConfig, num_cameras: int, nearest_deg: f
     why = []
     if num_cameras < CONFIRM_MIN_CAMERAS:
         why.append(f"the rig has {num_cameras} cameras (fewer than {CONFIRM_MIN_CAMERAS})")
-    if cfg.sigma_px > v.patch_spacing_px and v.search_sigmas < 1:
+    if cfg.sigma_px > v.spacing_px and v.search_sigmas < 1:
         why.append(
             f"sigma_px = {cfg.sigma_px:.3g} is above the patch spacing of view discovery "
-            f"({v.patch_spacing_px:.3g} px) and the search does not reach across the epipolar "
+            f"({v.spacing_px:.3g} px) and the search does not reach across the epipolar "
             f"line (search_sigmas = {v.search_sigmas:.3g})"
         )
     third = CONFIRM_THIRD_FACTOR * nearest_deg

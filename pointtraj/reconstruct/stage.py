@@ -411,7 +411,7 @@ def reconstruct_capture(
             f"frames {frames.start}:{frames.stop} must be a non-empty range within [0, {T})"
         )
     # the rig-derived settings and camera pairs, chosen once here, where their log is seen
-    cfg = with_texture_choices(cfg.for_rig(rig), capture, frames.start)
+    cfg = with_texture_choices(cfg, capture, frames.start).for_rig(rig)
     edges = config_edges(rig, cfg)
     chunks = plan_chunks(frames, cfg.chunk_frames, cfg.chunk_overlap)
     if len(chunks) == 1:
@@ -442,13 +442,13 @@ def reconstruct_capture(
 
 
 def with_texture_choices(cfg: ReconstructConfig, capture, frame: int) -> ReconstructConfig:
-    """``cfg`` with densification's patch spacing chosen from a frame's texture where it is
-    left out (:func:`~.texture.texture_patch_spacing`), and the choice logged.
+    """``cfg`` with the patch spacings of densification and view discovery chosen from a
+    frame's texture where they are left out (:func:`~.texture.texture_patch_spacing`: one
+    spacing for both), and the choice logged.
 
     Parameters
     ----------
     cfg : ReconstructConfig
-        After :meth:`~.config.ReconstructConfig.for_rig` (densification on or off).
     capture : pointtraj.session.Capture
         With ``camera_names`` and ``read(camera, frame)``.
     frame : int
@@ -457,19 +457,30 @@ def with_texture_choices(cfg: ReconstructConfig, capture, frame: int) -> Reconst
     Returns
     -------
     ReconstructConfig
-        Unchanged where densification is off or its spacing is set.
+        Unchanged where both spacings are set, or the mechanisms whose are left out are off
+        (densification set off, view discovery off).
     """
-    d = cfg.densify
-    if not d.enabled or d.patch_spacing_px is not None:
+    d, v = cfg.densify, cfg.views
+    left = [
+        name
+        for name, on, sub in (("densify", d.enabled is not False, d), ("views", v.enabled, v))
+        if on and sub.patch_spacing_px is None
+    ]
+    if not left:
         return cfg
     names = list(capture.camera_names)
     images = [capture.read(names[c], frame) for c in texture_cameras(len(names))]
     spacing, scale = texture_patch_spacing(images, d.patch_size)
+    what = {"densify": "densification", "views": "view discovery"}
     logger.info(
-        "densification's patch ([reconstruct.densify] patch_spacing_px): samples %s",
+        "patch spacing of %s (%s patch_spacing_px): samples %s",
+        " and ".join(what[n] for n in left),
+        " and ".join(f"[reconstruct.{n}]" for n in left),
         describe_texture_scale(scale, spacing),
     )
-    return dataclasses.replace(cfg, densify=dataclasses.replace(d, patch_spacing_px=spacing))
+    return dataclasses.replace(
+        cfg, **{n: dataclasses.replace(getattr(cfg, n), patch_spacing_px=spacing) for n in left}
+    )
 
 
 def _reconstruct_chunks(

@@ -1,7 +1,9 @@
-"""The scale of the images' texture, and densification's patch spacing chosen from it.
+"""The scale of the images' texture, and the patch spacing chosen from it (densification's and
+view discovery's).
 
-Densification compares 7 x 7 patches of samples ``patch_spacing_px`` apart. How wide a patch
-must be to hold enough texture depends on the images, not only on the rig:
+Densification compares 7 x 7 patches of samples ``patch_spacing_px`` apart, view discovery
+5 x 5 ones. How wide a patch must be to hold enough texture depends on the images, not only
+on the rig:
 
 - rendered texture (the synthetic captures) is fine-grained to the pixel: a patch 12 px across
   (2 px apart) already holds 85-95 % of the contrast of one twice as wide;
@@ -11,7 +13,8 @@ must be to hold enough texture depends on the images, not only on the rig:
   the silhouette against the background behind.
 
 :func:`texture_patch_spacing` measures that on a frame's images and takes the smallest
-spacing whose patch holds :data:`TEXTURE_HELD` of the contrast of a patch twice as wide.
+spacing whose 7 x 7 patch holds :data:`TEXTURE_HELD` of the contrast of a patch twice as
+wide; the reconstruction (:func:`~.stage.with_texture_choices`) gives it to both patches.
 ``docs/real_captures.md``, "Densification's patch from the images' texture", has the
 figures on every capture at hand.
 """

@@ -40,6 +40,7 @@ from ..errors import ValidationError, check_array
 from ..geometry import finite_rows, observed_first, squared_norm
 from ..scale import SceneLength
 from .densify import _ncc_warped, _rays, _sample, _warp, _zscore
+from .texture import PATCH_SPACINGS
 
 __all__ = [
     "ViewsConfig",
@@ -76,8 +77,14 @@ class ViewsConfig:
         Grey-level standard deviation (0-255) the reference patch needs.
     patch_size : int
         Samples per side of the patch.
-    patch_spacing_px : float
-        Spacing of the patch's samples in the reference image.
+    patch_spacing_px : float or None
+        Spacing of the patch's samples in the reference image. None (the default, the key left
+        out): chosen by the reconstruction from the first frame's texture, as densification's
+        (:func:`~.texture.texture_patch_spacing`): 2 px on rendered texture, 4-6 px on real
+        video. On the Pose2Sim demo 5 px made the labelled trajectories last 9 frames at the
+        median against 7 at 2 px (``docs/real_captures.md``, "Densification's patch from the
+        images' texture"). Functions given this config directly read None as 2 px
+        (:attr:`spacing_px`).
     depth_steps : int
         Depth hypotheses swept (odd keeps the point's own depth).
     depth_sigmas : float
@@ -180,7 +187,7 @@ class ViewsConfig:
     peak_width: int = 2
     min_std: float = 3.0
     patch_size: int = 5
-    patch_spacing_px: float = 2.0
+    patch_spacing_px: float | None = None
     depth_steps: int = 9
     depth_sigmas: float = 3.0
     min_depth_range_m: float = SceneLength(0.01)
@@ -206,7 +213,7 @@ class ViewsConfig:
             "peak_width": 1 <= self.peak_width < self.depth_steps // 2,
             "min_std": self.min_std >= 0,
             "patch_size": self.patch_size >= 3,
-            "patch_spacing_px": self.patch_spacing_px > 0,
+            "patch_spacing_px": self.patch_spacing_px is None or self.patch_spacing_px > 0,
             "depth_steps": self.depth_steps >= 5,
             "depth_sigmas": self.depth_sigmas > 0,
             "min_depth_range_m": self.min_depth_range_m > 0,
@@ -227,6 +234,12 @@ class ViewsConfig:
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
             raise ValidationError(f"ViewsConfig.{bad[0]} out of range: {getattr(self, bad[0])!r}")
+
+    @property
+    def spacing_px(self) -> float:
+        """``patch_spacing_px``, or :data:`~.texture.PATCH_SPACINGS`' first (2 px) where it is
+        left to the images and they were not measured."""
+        return PATCH_SPACINGS[0] if self.patch_spacing_px is None else self.patch_spacing_px
 
 
 def point_normals(
@@ -644,7 +657,7 @@ def _search(
     half = np.clip(cfg.depth_sigmas * sigma, cfg.min_depth_range_m, cfg.max_depth_range_m)
     ideal = rig.undistort_pixels(np.where(observed[..., None], pix, np.nan))
     h = (cfg.patch_size - 1) / 2
-    off = (np.arange(cfg.patch_size) - h) * cfg.patch_spacing_px
+    off = (np.arange(cfg.patch_size) - h) * cfg.spacing_px
     offsets = np.stack(np.meshgrid(off, off), axis=-1).reshape(-1, 2)  # (P, 2)
     steps = np.linspace(-1.0, 1.0, cfg.depth_steps)  # (D,) in units of the half-range
     across = _across_offsets(cfg, sigma_px)  # (S,) pixels across the epipolar line
@@ -701,8 +714,8 @@ def _across_offsets(cfg: ViewsConfig, sigma_px: float) -> np.ndarray:
     """(S,) offsets (pixels) across the epipolar line tried by the sweep (only 0 where the
     search does not reach beyond the patch spacing)."""
     half = cfg.search_sigmas * sigma_px
-    step = max(sigma_px / 2, cfg.patch_spacing_px)
-    if half <= cfg.patch_spacing_px:
+    step = max(sigma_px / 2, cfg.spacing_px)
+    if half <= cfg.spacing_px:
         return np.zeros(1)
     k = int(np.floor(half / step + 1e-9))
     return np.arange(-k, k + 1) * step

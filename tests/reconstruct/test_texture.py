@@ -20,6 +20,7 @@ from pointtraj.reconstruct.texture import (
     texture_cameras,
     texture_patch_spacing,
 )
+from pointtraj.reconstruct.views import ViewsConfig
 from pointtraj.session import Capture
 
 SHARED = Path(__file__).resolve().parents[2].parent / "shared"
@@ -111,15 +112,26 @@ class _Frames:
 def test_stage_chooses_only_what_is_left_out(caplog):
     rng = np.random.default_rng(3)
     real = _Frames([_natural_texture(rng) for _ in range(2)])
-    on = ReconstructConfig(densify=DensifyConfig(enabled=True))
     with caplog.at_level(logging.INFO, logger="pointtraj.reconstruct.stage"):
-        chosen = with_texture_choices(on, real, 0)
-    assert chosen.densify.patch_spacing_px >= 4.0
+        chosen = with_texture_choices(ReconstructConfig(), real, 0)
+    # one spacing for both patches
+    assert chosen.densify.patch_spacing_px == chosen.views.patch_spacing_px >= 4.0
     assert "from the images' texture" in caplog.text and "2 cameras" in caplog.text
-    kept = ReconstructConfig(densify=DensifyConfig(enabled=True, patch_spacing_px=3.0))
-    assert with_texture_choices(kept, real, 0) is kept
-    off = ReconstructConfig(densify=DensifyConfig(enabled=False))
-    assert with_texture_choices(off, real, 0).densify.patch_spacing_px is None
+    set_both = ReconstructConfig(
+        densify=DensifyConfig(patch_spacing_px=3.0), views=ViewsConfig(patch_spacing_px=2.5)
+    )
+    assert with_texture_choices(set_both, real, 0) is set_both
+    one = with_texture_choices(ReconstructConfig(views=ViewsConfig(patch_spacing_px=2.5)), real, 0)
+    assert one.views.patch_spacing_px == 2.5 and one.densify.patch_spacing_px >= 4.0
+    off = ReconstructConfig(densify=DensifyConfig(enabled=False), views=ViewsConfig(enabled=False))
+    assert with_texture_choices(off, real, 0) is off
+
+
+def test_views_config_spacing():
+    assert ViewsConfig().patch_spacing_px is None and ViewsConfig().spacing_px == 2.0
+    assert ViewsConfig(patch_spacing_px=5.0).spacing_px == 5.0
+    with pytest.raises(ValidationError, match="patch_spacing_px"):
+        ViewsConfig(patch_spacing_px=-1.0)
 
 
 @pytest.mark.shared
