@@ -111,6 +111,7 @@ def from_seeds(capture: Path, rig, frame: int, fraction: float, setting: dict) -
 
 def in_tracker(capture: Path, rig, config_path, last: int, frames: int, on: bool) -> dict:
     """Part 2: ``frames`` frames ending at ``last``, densification off or on."""
+    from pointtraj.reconstruct.stage import with_texture_choices
     from pointtraj.reconstruct.track import Tracker
     from pointtraj.session import Capture
     from pointtraj.stages import load_reconstruct_config
@@ -118,7 +119,8 @@ def in_tracker(capture: Path, rig, config_path, last: int, frames: int, on: bool
     cap = Capture.open(capture)
     cfg = load_reconstruct_config(config_path)
     cfg = dataclasses.replace(cfg, densify=dataclasses.replace(cfg.densify, enabled=on))
-    tracker = Tracker(rig, cfg)
+    # the patch spacings the reconstruction would choose from the images (2 px when rendered)
+    tracker = Tracker(rig, with_texture_choices(cfg, cap, last - frames + 1))
     c0 = time.process_time()
     for t in range(last - frames + 1, last + 1):
         rec = tracker.step(t, [cap.read(n, t) for n in rig.names])

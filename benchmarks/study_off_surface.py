@@ -70,6 +70,7 @@ def _on_actor(capture, rig, t: int, xyz: np.ndarray, observed: np.ndarray) -> np
 def study(capture: str, frames: int, config: str | None, off_m: float, draw: str | None) -> dict:
     """Track ``frames`` frames of ``capture`` and measure them (see the module's docstring)."""
     from pointtraj.evaluate.groundtruth import frame_surface_errors
+    from pointtraj.reconstruct.stage import with_texture_choices
     from pointtraj.reconstruct.track import Tracker
     from pointtraj.session import Capture
     from pointtraj.stages import load_reconstruct_config
@@ -79,7 +80,8 @@ def study(capture: str, frames: int, config: str | None, off_m: float, draw: str
     cap = Capture.open(capture)
     rig = cap.rig
     scale = capture_scale(capture)
-    tracker = Tracker(rig, load_reconstruct_config(config))
+    # the patch spacings the reconstruction would choose from the images (2 px when rendered)
+    tracker = Tracker(rig, with_texture_choices(load_reconstruct_config(config), cap, 0))
     want = tuple(int(x) for x in draw.split(":")[:2]) if draw else None
     counts = dict.fromkeys(("n", "off", "n2", "off2", "n3", "off3", "na", "offa", "nb", "offb"), 0)
     on_surface = []
