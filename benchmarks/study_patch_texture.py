@@ -1,4 +1,4 @@
-"""Study: densification's patch spacing chosen from each capture's texture.
+"""Study: the patch spacing (densification's and view discovery's) chosen from each capture's texture.
 
 For each capture, measures frames of it with :func:`pointtraj.reconstruct.texture.measure_texture_scale`
 (the cameras :func:`~pointtraj.reconstruct.texture.texture_cameras` picks) and prints, for each

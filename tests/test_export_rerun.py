@@ -206,7 +206,8 @@ def test_tiny_work_folder_reads_back(tiny_reference, tmp_path):
             np.reshape(pose["Transform3D:mat3x3"], (3, 3)).T, cam.R.T, atol=1e-6
         )
         pin = static[f"/world/cameras/{cam.name}/image"]
-        K, size = cam.resized(0.5).K, cam.resized(0.5).size
+        half = cam.resized(0.5)
+        K, size = half.K, half.size
         assert tuple(pin["Pinhole:resolution"]) == size
         np.testing.assert_allclose(
             np.reshape(pin["Pinhole:image_from_camera"], (3, 3)).T, K, atol=1e-4

@@ -67,9 +67,9 @@ class TextureScale:
     def patch_spacing(self, held: float = TEXTURE_HELD) -> float:
         """The smallest spacing whose patch holds ``held`` (the largest where none does; the
         first where nothing was measured)."""
-        ok = np.flatnonzero(self.held >= held)
         if self.cameras == 0:
             return float(self.spacings[0])
+        ok = np.flatnonzero(self.held >= held)
         return float(self.spacings[ok[0]] if ok.size else self.spacings[-1])
 
 
@@ -164,7 +164,8 @@ def measure_texture_scale(images: Sequence[np.ndarray], patch_size: int = 7) -> 
 def texture_patch_spacing(
     images: Sequence[np.ndarray], patch_size: int = 7, held: float = TEXTURE_HELD
 ) -> tuple[float, TextureScale]:
-    """Densification's patch spacing from a frame's texture (see the module docstring).
+    """The patch spacing (densification's and view discovery's) from a frame's texture (see
+    the module docstring).
 
     Parameters
     ----------
