@@ -33,6 +33,7 @@ from ..atomic import save_npz_atomic
 from ..errors import FileFormatError, ValidationError
 from ..npzfile import load_npz
 from ..trajectories import Trajectories
+from .reacquire import LostViews
 from .track import FrameRecord, TrackState
 
 __all__ = ["FrameStore", "RECORD_FORMAT_VERSION", "LIVE_FORMAT_VERSION", "DEFLATE_LEVEL"]
@@ -62,6 +63,7 @@ _LIVE_FIELDS = (
     "lone",
     "next_id",
 )
+_LOST_FIELDS = ("ids", "camera", "offset", "frac", "patch")
 
 
 class FrameStore:
@@ -140,6 +142,12 @@ class FrameStore:
             misses_values=state.misses.ravel()[np.flatnonzero(state.misses)],
             next_id=np.int64(state.next_id),
             densify_backlog=np.bool_(state.densify_backlog),
+            # the lost views that carried points may get back (reacquire.LostViews)
+            lost_ids=state.lost.ids,
+            lost_camera=state.lost.camera,
+            lost_offset=state.lost.offset,
+            lost_frac=state.lost.frac,
+            lost_patch=state.lost.patch,
         )
 
     # -- reading ---------------------------------------------------------------------------------
@@ -268,6 +276,10 @@ class FrameStore:
                 misses.reshape(N, C),
                 # absent before densification's backlog: none
                 densify_backlog=bool(d["densify_backlog"]) if "densify_backlog" in d else False,
+                # absent before lost views were re-acquired: none
+                lost=LostViews(*(d[f"lost_{f}"] for f in _LOST_FIELDS))
+                if "lost_ids" in d
+                else None,
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
@@ -505,6 +517,10 @@ def _check_live(path: Path, state: TrackState) -> None:
         "lone": (state.lone.shape, (N,)),
         "misses": (state.misses.shape, (N, C)),
     }
+    L = len(state.lost.ids)
+    for f in _LOST_FIELDS:
+        got = getattr(state.lost, f).shape
+        problems[f"lost_{f}"] = (got[:1], (L,))
     for name, (got, want) in problems.items():
         if got != want:
             raise FileFormatError(path, f"tracker state: live_{name} has {got}, expected {want}")

@@ -61,6 +61,15 @@ class SurviveConfig:
     max_px : float
         The prediction must project this close (pixels) to the remaining view's tracked
         position; 0 takes twice the RANSAC inlier threshold (``ransac_threshold_px``).
+        It is also the radius within which a lost view is searched for (``reacquire``).
+    reacquire : bool
+        Search the camera that lost a carried point's view for the point's patch from that
+        camera's last image of it (:mod:`~.reacquire`).
+    reacquire_ncc : float
+        Least NCC of a re-acquired view.
+    reacquire_margin : float
+        Least NCC by which a re-acquired view's peak must exceed every other peak of its
+        search.
     """
 
     frames: int = 3
@@ -69,6 +78,9 @@ class SurviveConfig:
     min_neighbors: int = 4
     max_fit_m: float = SceneLength(0.01)
     max_px: float = 0.0
+    reacquire: bool = True
+    reacquire_ncc: float = 0.8
+    reacquire_margin: float = 0.05
 
     def __post_init__(self) -> None:
         checks = {
@@ -78,6 +90,8 @@ class SurviveConfig:
             "min_neighbors": 3 <= self.min_neighbors <= self.neighbors,
             "max_fit_m": self.max_fit_m > 0,
             "max_px": self.max_px >= 0,
+            "reacquire_ncc": -1 <= self.reacquire_ncc <= 1,
+            "reacquire_margin": self.reacquire_margin >= 0,
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:

@@ -29,6 +29,7 @@ from ..trajectories import quantize_visibility
 from .config import ReconstructConfig
 from .flow import STILL_VIEWS_PER_PIXEL, expand_views, still_flow, to_grey, track_flow
 from .matching import MultiViewTracks, match_frame, moving_boxes, near_pixels, resolve_ambiguous
+from .reacquire import LostViews, cut_patches, search_patches
 from .survive import carry_one_view, predict_rigid
 from .views import (
     depth_uncertainty,
@@ -92,6 +93,9 @@ class TrackState:
         The frame's densification stopped at ``densify.max_points``: the next frame densifies
         as a matched frame does, also where it lies between whole-image matchings
         (``densify.between_motion_px``).
+    lost : LostViews, optional
+        The lost views that points on fewer than two views may get back
+        (:mod:`~.reacquire`). Default: none.
     """
 
     frame: int
@@ -103,8 +107,11 @@ class TrackState:
     lone: np.ndarray | None = None
     misses: np.ndarray | None = None
     densify_backlog: bool = False
+    lost: LostViews | None = None
 
     def __post_init__(self) -> None:
+        if self.lost is None:
+            self.lost = LostViews.empty()
         if self.lone is None:
             self.lone = np.zeros(len(self.ids), np.int64)
         if self.misses is None:
@@ -525,9 +532,12 @@ class Tracker:
         tri_old = triangulate_ransac(rig, obs, self.tri_config)
         triangulated = self._alive(tri_old)
         keep_old = triangulated
+        lost, regained = LostViews.empty(), 0  # views that carried points may get back
         if cfg.survive.frames > 0 and len(st):
-            tri_old, carried = self._carry(st, obs, tri_old, triangulated)
+            tri_old, carried, back, lost = self._carry(st, grey, obs, tri_old, triangulated)
+            triangulated = triangulated | back
             keep_old = triangulated | carried
+            regained = int(back.sum())
 
         # 2. dense matching: new points where no live trajectory is, every match_every frames;
         # in between (match_moving) only around the moving points. Densification grows from
@@ -639,6 +649,7 @@ class Tracker:
         ids = np.concatenate([old_ids[seen[:n_old]], st.next_id + np.arange(n_new)])
         xyz, vis, err, pix = xyz[seen], vis[seen], err[seen], pix[:, seen]
         pix = np.where((vis.T > cfg.visibility_threshold)[..., None], pix, np.nan)
+        lone = lone[seen]
         self.state = TrackState(
             t,
             ids,
@@ -646,20 +657,23 @@ class Tracker:
             vis,
             pix.astype(np.float32),
             st.next_id + n_new,
-            lone[seen],
+            lone,
             misses[seen],
             densify_backlog=backlog,
+            lost=lost.kept(ids[lone > 0]),
         )
         self._prev_grey = grey
         self._projected = None
         if proj is not None and cfg.lk_start == "projection":
             self._projected = (self.state, proj.pixels[:, seen])
         logger.info(
-            "frame %d: %d tracked of %d (%.0f %% of their views still), %d new, %d live",
+            "frame %d: %d tracked of %d (%.0f %% of their views still, %d lost views back), "
+            "%d new, %d live",
             t,
             int(seen[:n_old].sum()),
             len(st),
             100.0 * still / max(still + flowed, 1),
+            regained,
             n_new,
             len(ids),
         )
@@ -674,34 +688,56 @@ class Tracker:
         )
 
     def _carry(
-        self, st: TrackState, obs: np.ndarray, tri: Triangulation, triangulated: np.ndarray
-    ) -> tuple[Triangulation, np.ndarray]:
+        self,
+        st: TrackState,
+        grey: list[np.ndarray],
+        obs: np.ndarray,
+        tri: Triangulation,
+        triangulated: np.ndarray,
+    ) -> tuple[Triangulation, np.ndarray, np.ndarray, LostViews]:
         """One-view survival (:mod:`~.survive`) of live points the re-triangulation lost.
 
-        Returns the triangulation with the carried points' rows replaced (one inlier view,
-        visibility 1 there, the prediction's distance to it as the error) and which points
-        are carried.
+        Points carried on one view first search the camera that lost them
+        (:meth:`_reacquire`); those found there are triangulated again from their views.
+        Returns the triangulation with the carried and the re-acquired points' rows replaced
+        (a carried point: one inlier view, visibility 1 there, the prediction's distance to it
+        as the error), which points are carried, which re-acquired a view (``obs`` gets it),
+        and the lost views of the carried points (:class:`~.reacquire.LostViews`).
         """
         from .triangulate import Triangulation
 
         cfg = self.config
         carried = np.zeros(len(st), bool)
+        back = np.zeros(len(st), bool)
         cand = np.flatnonzero(
             ~triangulated & (st.lone < cfg.survive.frames) & finite_rows(obs).any(axis=0)
         )
         if cand.size == 0:  # (too few neighbours: predict_rigid predicts nothing)
-            return tri, carried
+            return tri, carried, back, LostViews.empty()
         pred, _ = predict_rigid(
             st.xyz[triangulated], tri.points[triangulated], st.xyz[cand], cfg.survive
         )
         max_px = cfg.survive.max_px or 2 * cfg.ransac_threshold_px
         X, cam, dist, ok = carry_one_view(self.rig, pred, obs[:, cand], max_px)
-        idx, cam, dist = cand[ok], cam[ok], dist[ok]
+        idx, cam, dist, X = cand[ok], cam[ok], dist[ok], X[ok]
         if idx.size == 0:
-            return tri, carried
+            return tri, carried, back, LostViews.empty()
         points, inliers, errors = tri.points.copy(), tri.inliers.copy(), tri.errors.copy()
         visibility, mean_error = tri.visibility.copy(), tri.mean_error.copy()
-        points[idx] = X[ok]
+        lost = LostViews.empty()
+        if cfg.survive.reacquire:
+            lost, found, sub = self._reacquire(st, grey, obs, idx, X, max_px)
+            rows = idx[found]
+            points[rows] = sub.points
+            inliers[:, rows] = sub.inliers
+            errors[:, rows] = sub.errors
+            visibility[rows] = sub.visibility
+            mean_error[rows] = sub.mean_error
+            back[rows] = True
+            keep = np.ones(idx.size, bool)
+            keep[found] = False
+            idx, cam, dist, X = idx[keep], cam[keep], dist[keep], X[keep]
+        points[idx] = X
         inliers[:, idx] = False
         inliers[cam, idx] = True
         errors[:, idx] = np.nan
@@ -710,8 +746,102 @@ class Tracker:
         visibility[idx, cam] = 1
         mean_error[idx] = dist
         carried[idx] = True
-        logger.debug("one-view survival: %d of %d points carried", idx.size, cand.size)
-        return Triangulation(points, inliers, errors, visibility, mean_error), carried
+        logger.debug(
+            "one-view survival: %d of %d points carried, %d got a lost view back",
+            idx.size,
+            cand.size,
+            int(back.sum()),
+        )
+        return Triangulation(points, inliers, errors, visibility, mean_error), carried, back, lost
+
+    def _reacquire(
+        self,
+        st: TrackState,
+        grey: list[np.ndarray],
+        obs: np.ndarray,
+        idx: np.ndarray,
+        X: np.ndarray,
+        radius: float,
+    ) -> tuple[LostViews, np.ndarray, Triangulation]:
+        """Search the cameras that lost carried points for them (:mod:`~.reacquire`).
+
+        ``idx`` (n,) are the carried points (rows of ``st``) and ``X`` (n, 3) their carried
+        positions. A point carried since an earlier frame searches the camera its lost view
+        was kept for; one that lost its views now keeps the view of the camera that saw it
+        best at the last frame, cut from that camera's previous image. Returns the lost
+        views of the n points (those with one), which of the n (indices) got a view back,
+        found and kept by RANSAC with at least two views, and their triangulation from their
+        views with the found one added (``obs`` gets their inlier views).
+        """
+        from .triangulate import Triangulation, triangulate_ransac
+
+        cfg = self.config
+        spacing = cfg.views.spacing_px
+        entry = st.lost.lookup(st.ids[idx])  # (n,) -1: lost now
+        # views lost now: seen at the last frame, not followed by the flow
+        fresh = np.flatnonzero(entry < 0)
+        parts = [st.lost.take(entry[entry >= 0])]
+        order = [np.flatnonzero(entry >= 0)]
+        if fresh.size:
+            rows = idx[fresh]
+            was = np.where(
+                (st.visibility[rows] > cfg.visibility_threshold) & ~finite_rows(obs[:, rows]).T,
+                st.visibility[rows],
+                -1.0,
+            )  # (f, C)
+            lost_cam = np.argmax(was, axis=1)
+            has = was[np.arange(rows.size), lost_cam] > 0
+            proj = self.rig.project(st.xyz[rows]).pixels  # (C, f, 2)
+            for c in np.unique(lost_cam[has]):
+                sel = np.flatnonzero(has & (lost_cam == c))
+                last = st.pixels[c, rows[sel]].astype(np.float64)
+                patch, frac, ok = cut_patches(self._prev_grey[c], last, spacing)
+                sel, patch, frac, last = sel[ok], patch[ok], frac[ok], last[ok]
+                centre = last - frac
+                parts.append(
+                    LostViews(
+                        st.ids[rows[sel]],
+                        np.full(sel.size, c, np.int64),
+                        (centre - proj[c, sel]).astype(np.float32),
+                        frac,
+                        patch,
+                    )
+                )
+                order.append(fresh[sel])
+        lost = LostViews.concat(parts)
+        where = np.concatenate(order)  # (L,) the rows of idx the entries belong to
+        found_px = np.full((len(lost), 2), np.nan)
+        if len(lost):
+            proj = self.rig.project(X[where]).pixels  # (C, L, 2)
+            for c in np.unique(lost.camera):
+                sel = np.flatnonzero(lost.camera == c)
+                centre = proj[c, sel] + lost.offset[sel]
+                px, _ = search_patches(
+                    grey[c],
+                    lost.patch[sel],
+                    centre,
+                    spacing,
+                    radius,
+                    cfg.survive.reacquire_ncc,
+                    cfg.survive.reacquire_margin,
+                )
+                found_px[sel] = px + lost.frac[sel]
+        hit = np.flatnonzero(np.isfinite(found_px).all(axis=1))
+        rows = where[hit]  # (h,) rows of idx with a found view (one entry per point)
+        sub_obs = obs[:, idx[rows]].copy()
+        sub_obs[lost.camera[hit], np.arange(hit.size)] = found_px[hit]
+        sub = triangulate_ransac(self.rig, sub_obs, self.tri_config)
+        good = sub.inliers[lost.camera[hit], np.arange(hit.size)] & self._alive(sub)
+        sub = Triangulation(
+            sub.points[good],
+            sub.inliers[:, good],
+            sub.errors[:, good],
+            sub.visibility[good],
+            sub.mean_error[good],
+        )
+        rows = rows[good]
+        obs[:, idx[rows]] = np.where(sub.inliers[..., None], sub_obs[:, good], np.nan)
+        return lost, rows, sub
 
     def _expand(
         self,
