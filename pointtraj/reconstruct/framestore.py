@@ -33,7 +33,7 @@ from ..atomic import save_npz_atomic
 from ..errors import FileFormatError, ValidationError
 from ..npzfile import load_npz
 from ..trajectories import Trajectories
-from .reacquire import LostViews
+from .reacquire import LOST_FIELDS, PATCH_SIDE, LostViews
 from .track import FrameRecord, TrackState
 
 __all__ = ["FrameStore", "RECORD_FORMAT_VERSION", "LIVE_FORMAT_VERSION", "DEFLATE_LEVEL"]
@@ -63,7 +63,6 @@ _LIVE_FIELDS = (
     "lone",
     "next_id",
 )
-_LOST_FIELDS = ("ids", "camera", "offset", "frac", "patch")
 
 
 class FrameStore:
@@ -143,11 +142,7 @@ class FrameStore:
             next_id=np.int64(state.next_id),
             densify_backlog=np.bool_(state.densify_backlog),
             # the lost views that carried points may get back (reacquire.LostViews)
-            lost_ids=state.lost.ids,
-            lost_camera=state.lost.camera,
-            lost_offset=state.lost.offset,
-            lost_frac=state.lost.frac,
-            lost_patch=state.lost.patch,
+            **{f"lost_{f}": getattr(state.lost, f) for f in LOST_FIELDS},
         )
 
     # -- reading ---------------------------------------------------------------------------------
@@ -277,9 +272,7 @@ class FrameStore:
                 # absent before densification's backlog: none
                 densify_backlog=bool(d["densify_backlog"]) if "densify_backlog" in d else False,
                 # absent before lost views were re-acquired: none
-                lost=LostViews(*(d[f"lost_{f}"] for f in _LOST_FIELDS))
-                if "lost_ids" in d
-                else None,
+                lost=LostViews(*(d[f"lost_{f}"] for f in LOST_FIELDS)) if "lost_ids" in d else None,
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise FileFormatError(path, f"unreadable tracker state ({exc})") from None
@@ -507,7 +500,8 @@ def assemble_records(
 
 
 def _check_live(path: Path, state: TrackState) -> None:
-    """Refuse a live state whose arrays disagree in length (naming the file)."""
+    """Refuse a live state whose arrays disagree in length, or whose lost views name a
+    camera the rig lacks (naming the file)."""
     N = len(state.ids)
     C = state.visibility.shape[1] if state.visibility.ndim == 2 else -1
     problems = {
@@ -517,10 +511,19 @@ def _check_live(path: Path, state: TrackState) -> None:
         "lone": (state.lone.shape, (N,)),
         "misses": (state.misses.shape, (N, C)),
     }
-    L = len(state.lost.ids)
-    for f in _LOST_FIELDS:
-        got = getattr(state.lost, f).shape
-        problems[f"lost_{f}"] = (got[:1], (L,))
+    lost = state.lost
+    L = lost.ids.shape[0] if lost.ids.ndim else -1
+    problems |= {
+        "lost_ids": (lost.ids.shape, (L,)),
+        "lost_camera": (lost.camera.shape, (L,)),
+        "lost_offset": (lost.offset.shape, (L, 2)),
+        "lost_frac": (lost.frac.shape, (L, 2)),
+        "lost_patch": (lost.patch.shape, (L, PATCH_SIDE * PATCH_SIDE)),
+    }
     for name, (got, want) in problems.items():
         if got != want:
             raise FileFormatError(path, f"tracker state: live_{name} has {got}, expected {want}")
+    if L > 0 and not np.all((lost.camera >= 0) & (lost.camera < C)):
+        raise FileFormatError(
+            path, f"tracker state: live_lost_camera has cameras outside 0-{C - 1}"
+        )

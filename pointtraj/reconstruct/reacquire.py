@@ -19,22 +19,24 @@ comes back only where RANSAC keeps both views.
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import check_array
+from .densify import _zscore
 
-__all__ = ["LostViews", "PATCH_SIDE", "cut_patches", "search_patches"]
-
-logger = logging.getLogger(__name__)
+__all__ = ["LostViews", "LOST_FIELDS", "PATCH_SIDE", "cut_patches", "search_patches"]
 
 #: Samples on a side of a patch.
 PATCH_SIDE = 7
 #: Elements of the (points, positions, samples) work array of one block of a search.
 _BLOCK = 1 << 22
+#: The arrays of :class:`LostViews`, in order (``state/live.npz`` keeps them as ``lost_<name>``).
+LOST_FIELDS = ("ids", "camera", "offset", "frac", "patch")
+#: Patches whose samples' standard deviation is at most this are flat: nothing to compare.
+_FLAT_STD = 1e-3
 
 
 @dataclass(frozen=True)
@@ -79,9 +81,7 @@ class LostViews:
 
     def take(self, rows: np.ndarray) -> LostViews:
         """The entries at ``rows`` (indices or a boolean mask)."""
-        return LostViews(
-            self.ids[rows], self.camera[rows], self.offset[rows], self.frac[rows], self.patch[rows]
-        )
+        return LostViews(*(getattr(self, f)[rows] for f in LOST_FIELDS))
 
     def kept(self, ids: np.ndarray) -> LostViews:
         """The entries of the trajectories in ``ids`` ((K,) int64)."""
@@ -92,12 +92,7 @@ class LostViews:
         """The entries of ``parts``, in order."""
         if not parts:
             return LostViews.empty()
-        return LostViews(
-            *(
-                np.concatenate([getattr(p, f) for p in parts])
-                for f in ("ids", "camera", "offset", "frac", "patch")
-            )
-        )
+        return LostViews(*(np.concatenate([getattr(p, f) for p in parts]) for f in LOST_FIELDS))
 
     def lookup(self, ids: np.ndarray) -> np.ndarray:
         """(K,) int64: each id's entry, -1 where it has none."""
@@ -157,14 +152,6 @@ def _blurred_windows(
     return win[:, m : side - m, m : side - m], inside
 
 
-def _zscore(x: np.ndarray) -> np.ndarray:
-    """``x`` centred and scaled to unit RMS over the last axis; NaN where it is flat."""
-    x = x - x.mean(axis=-1, keepdims=True)
-    rms = np.sqrt(np.mean(np.square(x), axis=-1, keepdims=True))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(rms > 1e-3, x / rms, np.nan).astype(np.float32)
-
-
 def cut_patches(
     grey: np.ndarray, pixels: np.ndarray, spacing: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -192,9 +179,10 @@ def cut_patches(
     centres = np.rint(np.nan_to_num(px, nan=-1e6)).astype(np.int64)
     h = s * (PATCH_SIDE // 2)
     win, inside = _blurred_windows(grey, centres, h, blur_sigma(spacing))
-    patch = _zscore(win[:, ::s, ::s].reshape(len(px), -1))
-    ok = inside & np.isfinite(patch).all(axis=1)
-    return np.nan_to_num(patch), (px - centres).astype(np.float32), ok
+    patch, std = _zscore(win[:, ::s, ::s].reshape(len(px), -1))
+    ok = inside & (std > _FLAT_STD) & np.isfinite(patch).all(axis=1)
+    patch = np.where(ok[:, None], patch, 0.0).astype(np.float32)
+    return patch, (px - centres).astype(np.float32), ok
 
 
 def search_patches(
@@ -304,7 +292,7 @@ def _ncc_map(win: np.ndarray, tmpl: np.ndarray, s: int, G: int) -> np.ndarray:
     var = np.maximum(s2 / P - np.square(s1 / P), 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         ncc = dot / (P * np.sqrt(var))
-    return np.where(var > 1e-6, ncc, -1.0).astype(np.float32)
+    return np.where(var > _FLAT_STD**2, ncc, -1.0).astype(np.float32)
 
 
 def _parabola(left: np.ndarray, mid: np.ndarray, right: np.ndarray) -> np.ndarray:

@@ -791,7 +791,7 @@ class Tracker:
             )  # (f, C)
             lost_cam = np.argmax(was, axis=1)
             has = was[np.arange(rows.size), lost_cam] > 0
-            proj = self.rig.project(st.xyz[rows]).pixels  # (C, f, 2)
+            # camera by camera: projecting into every camera is C times the work
             for c in np.unique(lost_cam[has]):
                 sel = np.flatnonzero(has & (lost_cam == c))
                 last = st.pixels[c, rows[sel]].astype(np.float64)
@@ -802,7 +802,9 @@ class Tracker:
                     LostViews(
                         st.ids[rows[sel]],
                         np.full(sel.size, c, np.int64),
-                        (centre - proj[c, sel]).astype(np.float32),
+                        (centre - self.rig[int(c)].project(st.xyz[rows[sel]])[0]).astype(
+                            np.float32
+                        ),
                         frac,
                         patch,
                     )
@@ -812,10 +814,9 @@ class Tracker:
         where = np.concatenate(order)  # (L,) the rows of idx the entries belong to
         found_px = np.full((len(lost), 2), np.nan)
         if len(lost):
-            proj = self.rig.project(X[where]).pixels  # (C, L, 2)
             for c in np.unique(lost.camera):
                 sel = np.flatnonzero(lost.camera == c)
-                centre = proj[c, sel] + lost.offset[sel]
+                centre = self.rig[int(c)].project(X[where[sel]])[0] + lost.offset[sel]
                 px, _ = search_patches(
                     grey[c],
                     lost.patch[sel],

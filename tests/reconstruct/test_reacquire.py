@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
+from pointtraj.errors import FileFormatError
 from pointtraj.reconstruct.config import ReconstructConfig
 from pointtraj.reconstruct.framestore import FrameStore
 from pointtraj.reconstruct.matching import MatchingConfig
@@ -140,6 +141,15 @@ def test_the_tracker_gets_a_lost_view_back_from_its_own_camera(banded, tmp_path)
     back = store.read_live()
     for f in ("ids", "camera", "offset", "frac", "patch"):
         np.testing.assert_array_equal(getattr(back.lost, f), getattr(st.lost, f))
+    # a state file whose lost views are malformed is refused, naming the file and the array
+    good = dict(np.load(store.live_path))
+    for key, value, what in (
+        ("lost_patch", good["lost_patch"][:, :25], "live_lost_patch"),
+        ("lost_camera", np.full_like(good["lost_camera"], len(rig)), "live_lost_camera"),
+    ):
+        np.savez(store.live_path, **{**good, key: value})
+        with pytest.raises(FileFormatError, match=f"live.npz.*{what}"):
+            store.read_live()
 
     def views_at(on: bool, t: int) -> np.ndarray:
         r = recs[on][t]
